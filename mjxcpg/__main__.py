@@ -1,0 +1,5 @@
+import sys
+
+from mjxcpg.cli import main
+
+sys.exit(main())

@@ -1,0 +1,147 @@
+"""The robot model: loading (with a floor slope), its layout, and what its sensors read."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from mjxcpg import ik
+
+MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "qrio.xml"
+LEG_JOINTS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
+MAX_SLOPE_DEG = 30.0
+
+
+def load_model(slope_deg: float = 0.0, path: Path | str | None = None,
+               timestep: float | None = None) -> mujoco.MjModel:
+    """Compile the MJCF and tilt the floor by ``slope_deg`` (positive: uphill along +x)."""
+    if not -MAX_SLOPE_DEG <= slope_deg <= MAX_SLOPE_DEG:
+        raise ValueError(f"slope must be within +/-{MAX_SLOPE_DEG:g} degrees, got {slope_deg:g}")
+    model = mujoco.MjModel.from_xml_path(str(path or MODEL_PATH))
+    half = math.radians(-slope_deg) / 2  # rotating the plane about +y by -slope tilts it uphill
+    floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    model.geom_quat[floor] = [math.cos(half), 0.0, math.sin(half), 0.0]
+    if timestep is not None:
+        model.opt.timestep = timestep
+    return model
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Addresses into qpos, ctrl and sensordata, read once from a compiled model."""
+
+    nq: int
+    nv: int
+    nu: int
+    left_leg_ctrl: tuple[int, ...]
+    right_leg_ctrl: tuple[int, ...]
+    ctrl_home: tuple[float, ...]      # servo targets of the joints the CPG does not move
+    gyro: int
+    quat: int
+    left_touch: int
+    right_touch: int
+    weight: float                     # m g, newtons
+    slope_tan: float
+    geometry: ik.LegGeometry
+    hip_to_sole: tuple[float, float]  # pelvis centre to hip, ankle to sole bottom (m)
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel) -> "Layout":
+        def actuator(name: str) -> int:
+            return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+
+        def sensor(name: str) -> int:
+            return int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)])
+
+        def body_offset(name: str) -> float:
+            return -float(model.body_pos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)][2])
+
+        floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        w, _, y, _ = model.geom_quat[floor]
+        sole = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "l_sole")
+        ankle_to_sole = -float(model.geom_pos[sole][2]) + float(model.geom_size[sole][2])
+        home = np.zeros(model.nu)
+        for side, roll in (("l", 0.15), ("r", -0.15)):  # arms slightly away from the body
+            home[actuator(f"{side}_shoulder_roll")] = roll
+            home[actuator(f"{side}_elbow")] = -0.3
+        return cls(
+            nq=model.nq, nv=model.nv, nu=model.nu,
+            left_leg_ctrl=tuple(actuator(f"l_{j}") for j in LEG_JOINTS),
+            right_leg_ctrl=tuple(actuator(f"r_{j}") for j in LEG_JOINTS),
+            ctrl_home=tuple(home),
+            gyro=sensor("imu_gyro"), quat=sensor("imu_quat"),
+            left_touch=sensor("l_sole_force"), right_touch=sensor("r_sole_force"),
+            weight=float(model.body_subtreemass[1] * -model.opt.gravity[2]),
+            slope_tan=float(-2 * w * y / (w * w - y * y)) if w * w != y * y else 0.0,
+            geometry=ik.LegGeometry(thigh=body_offset("l_shin"), shin=body_offset("l_ankle")),
+            hip_to_sole=(body_offset("l_hip"), ankle_to_sole),
+        )
+
+    def pelvis_height(self, leg_length: float) -> float:
+        """Pelvis height above flat ground when both legs stand at ``leg_length``."""
+        return self.hip_to_sole[0] + leg_length + self.hip_to_sole[1]
+
+
+class Sensors(NamedTuple):
+    """Raw engine output for one robot (or a batch): the ground truth and the sensors."""
+
+    qpos: jax.Array
+    qvel: jax.Array
+    sensordata: jax.Array
+
+
+class Observation(NamedTuple):
+    """What the controller and the learner use, for one robot."""
+
+    gyro: jax.Array          # pelvis angular velocity in its own frame (roll, pitch, yaw rates)
+    roll: jax.Array          # pelvis roll, right-handed about the forward axis (left side up > 0)
+    pitch: jax.Array
+    force_left: jax.Array    # vertical sole forces (N)
+    force_right: jax.Array
+    height: jax.Array        # ground truth: pelvis height above the floor under it (m)
+    forward_velocity: jax.Array  # ground truth: pelvis velocity along +x (m/s)
+    forward_position: jax.Array
+    uprightness: jax.Array   # ground truth: z component of the pelvis' up axis
+
+
+def observe(layout: Layout, sensors: Sensors) -> Observation:
+    """Read one robot's observation from engine output (pure JAX)."""
+    sd, qpos, qvel = sensors.sensordata, sensors.qpos, sensors.qvel
+    w, x, y, z = (sd[layout.quat + k] for k in range(4))
+    roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
+    qw, qx, qy, _ = (qpos[3 + k] for k in range(4))
+    return Observation(
+        gyro=sd[layout.gyro:layout.gyro + 3],
+        roll=roll,
+        pitch=pitch,
+        force_left=sd[layout.left_touch],
+        force_right=sd[layout.right_touch],
+        height=qpos[2] - qpos[0] * layout.slope_tan,
+        forward_velocity=qvel[0],
+        forward_position=qpos[0],
+        uprightness=1 - 2 * (qx * qx + qy * qy),
+    )
+
+
+def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: float) -> np.ndarray:
+    """A standing pose on flat ground with both ankles at (x0, leg_length) below the hips."""
+    qpos = model.qpos0.copy()
+    qpos[2] = layout.pelvis_height(leg_length) + 0.001
+    angles = np.asarray(ik.leg_joint_angles(jnp.float32(x0), jnp.float32(leg_length), layout.geometry))
+    for ctrl_ids in (layout.left_leg_ctrl, layout.right_leg_ctrl):
+        for k, actuator in enumerate(ctrl_ids):
+            joint = model.actuator_trnid[actuator, 0]
+            qpos[model.jnt_qposadr[joint]] = angles[k]
+    for actuator, target in enumerate(layout.ctrl_home):
+        joint = model.actuator_trnid[actuator, 0]
+        if actuator not in layout.left_leg_ctrl + layout.right_leg_ctrl:
+            qpos[model.jnt_qposadr[joint]] = target
+    return qpos

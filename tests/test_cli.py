@@ -1,0 +1,29 @@
+"""The command line: JSON output and one-line errors."""
+
+import json
+
+import pytest
+
+from mjxcpg.cli import main
+
+
+@pytest.mark.parametrize("argv", [
+    ["walk", "--seconds", "-1"],
+    ["walk", "--engine", "bullet"],
+    ["walk", "--slope", "90"],
+    ["walk", "--seconds", "nan"],
+])
+def test_bad_input_is_one_line_and_nonzero(argv, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mjxcpg") and "\n" not in err
+
+
+def test_walk_json_is_the_last_line(capsys):
+    assert main(["walk", "--engine", "mujoco", "--seconds", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in ("fell", "seconds", "mean_vx", "mean_pelvis_height", "gait_period", "engine"):
+        assert key in result
+    assert result["engine"] == "mujoco" and result["seconds"] == pytest.approx(3.0)
