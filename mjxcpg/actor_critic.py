@@ -113,9 +113,12 @@ def terminal_td_error(reward: jax.Array, previous_value: jax.Array, dt: float) -
     """Eq (17) at a fall: ``td_error`` with V(t) = 0, i.e. delta = r - V(t - dt) / dt.
 
     The trial ends at a fall, so nothing more is collected and the value after it is 0.
-    With this delta the update of eq (19) moves V(x(t - dt)) toward r dt: the lost future
-    value V(t - dt) is removed in one step, and the fall reward (r = -1 in the paper) counts,
-    like every reward here, as a rate over the last control period.
+    With this delta, eq (19) changes V(x(t - dt)) by alpha (e^c . b) (r dt - V(t - dt)): the
+    lost future value is the punishment, and the fall reward (r = -1 in the paper) counts,
+    like every reward here, as a rate over the last control period.  The gain
+    alpha (e^c . b) is at most about alpha kappa_c |b|^2 ~ 6 at the printed rates (a state
+    held for longer than kappa_c), i.e. V there overshoots past r dt; it is much smaller
+    while the input moves across the grid within kappa_c, and ``rate_scale`` scales it.
     """
     return reward - previous_value / dt
 

@@ -50,9 +50,20 @@ def make_basis(grid: int = 15, low: float = -2.0, high: float = 2.0,
                       inv_widths=jnp.asarray(inv_widths, jnp.float32))
 
 
+# Inputs are clamped to the grid's box widened by this many widths (s_k^-1) on every side.
+# Beyond it the normalised basis no longer changes in float32 (the next row of centres
+# weighs less than exp(-2 * 20 - 1) ~ 1e-18 relative to the edge row), and the clamp keeps
+# huge or infinite inputs from overflowing the squared distances into inf - inf = NaN.
+_CLAMP_MARGIN_WIDTHS = 20.0
+
+
 def _gaussian_exponents(basis: NGnetBasis, x: jax.Array) -> jax.Array:
     """-||s_k * (x - c_k)||^2 for every k, shape (K,): the log of phi_k in eq (24)."""
-    scaled = basis.inv_widths * (jnp.asarray(x, basis.centers.dtype) - basis.centers)
+    margin = _CLAMP_MARGIN_WIDTHS / basis.inv_widths
+    low = jnp.min(basis.centers, axis=0) - margin
+    high = jnp.max(basis.centers, axis=0) + margin
+    x = jnp.clip(jnp.asarray(x, basis.centers.dtype), low, high)
+    scaled = basis.inv_widths * (x - basis.centers)
     return -jnp.sum(scaled**2, axis=-1)
 
 
@@ -72,7 +83,8 @@ def normalized_basis(basis: NGnetBasis, x: jax.Array) -> jax.Array:
 
     Computed in log space (a softmax of the exponents, which subtracts the largest exponent
     before exponentiating), so inputs far outside the grid, where every phi_k underflows,
-    give the basis of the nearest centres instead of 0 / 0.
+    give the basis of the nearest centres instead of 0 / 0; inputs more than 20 widths
+    outside are clamped to that distance, where b no longer changes in float32.
     """
     return jax.nn.softmax(_gaussian_exponents(basis, x))
 

@@ -15,7 +15,7 @@ from mjxcpg.engines import Engine
 from mjxcpg.robot import Layout, Observation, observe
 
 FeedbackFn = Callable[[Observation, jax.Array], jax.Array]  # (obs, params) -> a5
-FALL_HEIGHT = 0.17        # pelvis height (m) below which the robot has fallen
+FALL_HEIGHT = 0.20        # pelvis height (m) below which the robot has fallen (walking: 0.28)
 FALL_UPRIGHTNESS = 0.5    # cos of 60 degrees of pelvis tilt
 
 

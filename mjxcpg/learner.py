@@ -1,0 +1,205 @@
+"""One learner on one robot: the reward (eq 27), the trial protocol, and the actor-critic
+step wired to the CPG controller.  Pure JAX for one learner; ``vmap`` it over learners.
+
+A control step of one learner, in order:
+
+1. observe the robot; the reward r = k_H (h1 - h') + k_S v_x (eq 27), with v_x low-pass
+   filtered, since the instantaneous pelvis velocity swings negative with every lateral sway;
+2. while the learner acts: the TD error (eq 17) of the last period and the weight updates
+   (eqs 19, 22) with the traces as they were;
+3. the action: during the first seconds of a trial the hand-designed a_5 = K d theta_roll/dt
+   starts the gait; from a random hand-over time the policy's a_5 = a_max g(v) (eqs 10-12),
+   and its traces take the new gradients (eqs 18, 21);
+4. the CPG and the servo targets.
+
+A trial ends at a fall (the robot is down, or its physics diverged) or after 20 s.  At a
+fall the TD error is delta = r_fall - V(x(t - dt)), Doya's (2000) terminal condition: the
+value just before the fall is pulled toward the fall's reward (-1), with no future after it.
+Learning has succeeded after ``success_streak`` successive trials without a fall; the policy
+is frozen from then on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from mjxcpg import actor_critic as ac
+from mjxcpg import cpg, ngnet, policy
+from mjxcpg.controller import ControllerParams, control_step, hand_feedback, joint_targets
+from mjxcpg.robot import Layout, Observation, Sensors, observe
+from mjxcpg.walk import has_fallen
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialParams:
+    """Reward (eq 27) and trial protocol (Experiments section)."""
+
+    k_h: float = 10.0                     # height reward gain
+    h_ref: float = 0.272                  # h', m
+    fall_reward: float = -1.0
+    trial_seconds: float = 20.0
+    hand_seconds: tuple[float, float] = (1.0, 3.0)  # hand-over time, uniform in this range
+    velocity_filter_s: float = 0.5        # time constant of the v_x low-pass filter
+    success_streak: int = 20
+    max_trials: int = 1000
+
+
+class Bookkeeping(NamedTuple):
+    trial: jax.Array              # trials finished
+    step: jax.Array               # control steps into the current trial
+    handover: jax.Array           # step at which the learner takes over
+    trial_return: jax.Array       # accumulated reward of the current trial
+    filtered_vx: jax.Array
+    streak: jax.Array             # successive trials without a fall
+    trials_to_success: jax.Array  # -1 until the success criterion is met
+    returns: jax.Array            # (max_trials,) accumulated reward per trial
+    falls: jax.Array              # (max_trials,) whether each trial ended in a fall
+
+
+class LearnerState(NamedTuple):
+    k_s: jax.Array
+    key: jax.Array
+    cpg: cpg.CPGState
+    weights: ac.Weights
+    traces: ac.Traces
+    previous_basis: jax.Array     # b(x(t - dt)); V(t - dt) is re-evaluated with current weights
+    has_previous: jax.Array
+    book: Bookkeeping
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """Everything static a learner step needs."""
+
+    layout: Layout
+    controller: ControllerParams
+    learner: ac.LearnerParams
+    trial: TrialParams
+    basis: ngnet.NGnetBasis
+
+    @property
+    def dt(self) -> float:
+        return self.controller.control_dt
+
+    @property
+    def trial_steps(self) -> int:
+        return round(self.trial.trial_seconds / self.dt)
+
+    def __hash__(self):
+        return id(self)
+
+
+def reward(trial: TrialParams, k_s: jax.Array, height: jax.Array, forward_velocity: jax.Array) -> jax.Array:
+    """Eq (27): r = k_H (h1 - h') + k_S v_x."""
+    return trial.k_h * (height - trial.h_ref) + k_s * forward_velocity
+
+
+def policy_input(obs: Observation) -> jax.Array:
+    """x = (d theta_roll/dt, d theta_pitch/dt), the pelvis gyro; zeros if it is not finite."""
+    x = obs.gyro[:2]
+    return jnp.where(jnp.isfinite(x), x, 0.0)
+
+
+def _handover_step(task: Task, key: jax.Array) -> jax.Array:
+    low, high = task.trial.hand_seconds
+    return jnp.round(jax.random.uniform(key, (), minval=low, maxval=high) / task.dt).astype(jnp.int32)
+
+
+def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
+    key, sub = jax.random.split(jax.random.PRNGKey(seed))
+    k = task.basis.centers.shape[0]
+    n = task.trial.max_trials
+    return LearnerState(
+        k_s=jnp.float32(k_s), key=key, cpg=cpg.init_state(),
+        weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k),
+        previous_basis=jnp.zeros(k, jnp.float32), has_previous=jnp.bool_(False),
+        book=Bookkeeping(
+            trial=jnp.int32(0), step=jnp.int32(0), handover=_handover_step(task, sub),
+            trial_return=jnp.float32(0), filtered_vx=jnp.float32(0), streak=jnp.int32(0),
+            trials_to_success=jnp.int32(-1), returns=jnp.zeros(n, jnp.float32),
+            falls=jnp.zeros(n, bool)),
+    )
+
+
+def is_done(task: Task, state: LearnerState) -> jax.Array:
+    """Succeeded, or out of trials."""
+    return (state.book.trials_to_success >= 0) | (state.book.trial >= task.trial.max_trials)
+
+
+def learner_step(task: Task, state: LearnerState, sensors: Sensors,
+                 home_ctrl: jax.Array) -> tuple[LearnerState, jax.Array, jax.Array]:
+    """One control period of one learner: returns (state, servo targets, trial ended)."""
+    p, book = task.learner, state.book
+    obs = observe(task.layout, sensors)
+    fell = has_fallen(obs)
+    alpha = task.dt / task.trial.velocity_filter_s
+    filtered_vx = book.filtered_vx + alpha * (jnp.nan_to_num(obs.forward_velocity) - book.filtered_vx)
+    r = reward(task.trial, state.k_s, obs.height, filtered_vx)
+
+    frozen = is_done(task, state)
+    acting = book.step >= book.handover
+    b = ngnet.normalized_basis(task.basis, policy_input(obs))
+    previous_value = ngnet.ngnet_value(state.weights.critic, state.previous_basis)
+    delta = jnp.where(
+        fell, task.trial.fall_reward - previous_value,
+        ac.td_error(r, ngnet.ngnet_value(state.weights.critic, b), previous_value, task.dt, p.tau))
+    update = acting & state.has_previous & ~frozen
+    weights = jax.tree.map(lambda new, old: jnp.where(update, new, old),
+                           ac.learner_update(p, state.weights, state.traces, delta, task.dt),
+                           state.weights)
+
+    key, noise_key, handover_key = jax.random.split(state.key, 3)
+    mean = ngnet.ngnet_value(weights.mean, b)
+    std = ngnet.policy_std(weights.sigma)
+    v = policy.sample_action(mean, std, jax.random.normal(noise_key))
+    a5 = jnp.where(acting, policy.feedback_action(v, p.a_max), hand_feedback(task.controller, obs))
+    traces = jax.tree.map(lambda new, old: jnp.where(acting, new, old),
+                          ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt),
+                          state.traces)
+    cpg_state, ctrl = control_step(task.controller, task.layout, state.cpg, obs, a5)
+
+    trial_return = book.trial_return + jnp.where(
+        acting, jnp.where(fell, task.trial.fall_reward, r * task.dt), 0.0)
+    ended = fell | (book.step + 1 >= task.trial_steps)
+    record = ended & ~frozen
+    index = jnp.minimum(book.trial, task.trial.max_trials - 1)
+    streak = jnp.where(ended, jnp.where(fell, 0, book.streak + 1), book.streak)
+    newly_succeeded = record & (streak >= task.trial.success_streak) & (book.trials_to_success < 0)
+    book = Bookkeeping(
+        trial=book.trial + record.astype(jnp.int32),
+        step=jnp.where(ended, 0, book.step + 1),
+        handover=jnp.where(ended, _handover_step(task, handover_key), book.handover),
+        trial_return=jnp.where(ended, 0.0, trial_return),
+        filtered_vx=jnp.where(ended, 0.0, filtered_vx),
+        streak=streak,
+        trials_to_success=jnp.where(newly_succeeded, book.trial + 1, book.trials_to_success),
+        returns=book.returns.at[index].set(jnp.where(record, trial_return, book.returns[index])),
+        falls=book.falls.at[index].set(jnp.where(record, fell, book.falls[index])),
+    )
+    fresh_cpg = cpg.init_state()
+    state = LearnerState(
+        k_s=state.k_s, key=key,
+        cpg=jax.tree.map(lambda a, b_: jnp.where(ended, a, b_), fresh_cpg, cpg_state),
+        weights=weights,
+        traces=jax.tree.map(lambda t: jnp.where(ended, jnp.zeros_like(t), t), traces),
+        previous_basis=b, has_previous=acting & ~ended, book=book,
+    )
+    return state, jnp.where(ended, home_ctrl, ctrl), ended
+
+
+def home_ctrl(task: Task) -> jax.Array:
+    """Servo targets of the standing pose that every trial starts from."""
+    return joint_targets(task.controller, task.layout, cpg.output(cpg.init_state()) * 0.0)
+
+
+def policy_mean_feedback(task: Task):
+    """a_5 of the learned policy without noise, for walking and evaluation:
+    ``feedback(obs, weights)`` = a_max g(mu(x))."""
+    def feedback(obs: Observation, weights: ac.Weights) -> jax.Array:
+        b = ngnet.normalized_basis(task.basis, policy_input(obs))
+        return policy.feedback_action(ngnet.ngnet_value(weights.mean, b), task.learner.a_max)
+    return feedback

@@ -1,0 +1,119 @@
+"""Many learners in lockstep: ``vmap`` over learners, ``lax.scan`` over control steps,
+a thin Python loop over chunks for progress and checkpoints (after PureJaxRL's layout)."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxcpg import actor_critic as ac
+from mjxcpg import ngnet
+from mjxcpg.controller import ControllerParams
+from mjxcpg.learner import LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step
+from mjxcpg.sim import Simulation, make_simulation
+
+
+class RunState(NamedTuple):
+    physics: Any          # the engine's batched state
+    learners: LearnerState  # batched over learners
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """What a run is: one learner per (k_s, seed) pair."""
+
+    k_s: tuple[float, ...]
+    seeds: tuple[int, ...]
+    learner: ac.LearnerParams = ac.LearnerParams()
+    trial: TrialParams = TrialParams()
+    controller: ControllerParams = ControllerParams()
+    physics_dt: float | None = None
+    basis_grid: int = 15
+    basis_width: float = 1.0
+    chunk_seconds: float = 20.0
+
+    @property
+    def batch(self) -> int:
+        return len(self.k_s)
+
+
+def make_task(sim: Simulation, spec: RunSpec) -> Task:
+    return Task(layout=sim.layout, controller=spec.controller, learner=spec.learner,
+                trial=spec.trial, basis=ngnet.make_basis(spec.basis_grid, width_scale=spec.basis_width))
+
+
+def init_run(sim: Simulation, task: Task, spec: RunSpec) -> RunState:
+    learners = [init_learner(task, k, s) for k, s in zip(spec.k_s, spec.seeds)]
+    return RunState(physics=sim.engine.init(sim.qpos0, spec.batch),
+                    learners=jax.tree.map(lambda *xs: jnp.stack(xs), *learners))
+
+
+def make_chunk(sim: Simulation, task: Task, steps: int) -> Callable[[RunState], RunState]:
+    """A jitted function advancing every learner by ``steps`` control periods."""
+    engine = sim.engine
+    home = home_ctrl(task)
+    step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None))
+
+    def body(carry: tuple[RunState, Any], _):
+        run, initial = carry
+        learners, ctrl, ended = step_learners(run.learners, engine.sensors(run.physics), home)
+        physics = engine.reset(run.physics, initial, ended)
+        physics = engine.step(physics, ctrl)
+        return (RunState(physics, learners), initial), None
+
+    @jax.jit
+    def chunk(run: RunState, initial: Any) -> RunState:
+        (run, _), _ = jax.lax.scan(body, (run, initial), None, length=steps)
+        return run
+
+    return chunk
+
+
+def progress_counts(task: Task, learners: LearnerState) -> dict:
+    book = jax.device_get(learners.book)
+    return {
+        "trials": int(np.sum(book.trial)),
+        "succeeded": int(np.sum(book.trials_to_success >= 0)),
+        "done": int(np.sum(jax.device_get(jax.vmap(functools.partial(is_done, task))(learners)))),
+    }
+
+
+def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
+    """Per learner: k_s, seed, success, trials to success, per-trial returns and falls."""
+    book = jax.device_get(learners.book)
+    out = []
+    for i in range(spec.batch):
+        n = int(book.trial[i])
+        tts = int(book.trials_to_success[i])
+        out.append({
+            "k_s": spec.k_s[i], "seed": spec.seeds[i], "succeeded": tts >= 0,
+            "trials_to_success": tts if tts >= 0 else None, "trials": n,
+            "returns": [float(x) for x in book.returns[i][:n]],
+            "falls": [bool(x) for x in book.falls[i][:n]],
+        })
+    return out
+
+
+def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
+                   on_chunk: Callable[[RunState, dict], None] | None = None,
+                   chunk_fn: Callable | None = None) -> RunState:
+    """Python loop over jitted chunks until every learner has succeeded or used its budget."""
+    steps = round(spec.chunk_seconds / task.dt)
+    chunk = chunk_fn or make_chunk(sim, task, steps)
+    initial = sim.engine.init(sim.qpos0, spec.batch)
+    while True:
+        counts = progress_counts(task, state.learners)
+        if counts["done"] == spec.batch:
+            return state
+        start = time.perf_counter()
+        state = jax.block_until_ready(chunk(state, initial))
+        counts = progress_counts(task, state.learners)
+        counts["robot_steps_per_s"] = spec.batch * steps * sim.engine.substeps / (time.perf_counter() - start)
+        if on_chunk is not None:
+            on_chunk(state, counts)
