@@ -145,7 +145,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
     b = ngnet.normalized_basis(task.basis, policy_input(obs))
     previous_value = ngnet.ngnet_value(state.weights.critic, state.previous_basis)
     delta = jnp.where(
-        fell, task.trial.fall_reward - previous_value,
+        fell, ac.terminal_td_error(task.trial.fall_reward, previous_value),
         ac.td_error(r, ngnet.ngnet_value(state.weights.critic, b), previous_value, task.dt, p.tau))
     update = acting & state.has_previous & ~frozen
     weights = jax.tree.map(lambda new, old: jnp.where(update, new, old),

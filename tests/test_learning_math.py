@@ -15,7 +15,7 @@ from mjxcpg import ngnet, policy
 
 BASIS = ngnet.make_basis()
 NUM_BASIS = BASIS.centers.shape[0]
-PRINTED = ac.LearnerParams()   # the paper's rates, rate_scale = 1
+PRINTED = ac.LearnerParams(rate_scale=1.0, w_sigma_bounds=None)  # the paper's rates as printed
 
 basis_at = jax.jit(jax.vmap(lambda x: ngnet.normalized_basis(BASIS, x)))
 activations_at = jax.jit(jax.vmap(lambda x: ngnet.gaussian_activations(BASIS, x)))
@@ -134,8 +134,7 @@ def test_td_errors():
     np.testing.assert_allclose(ac.td_error(0.3, 2.0, 1.5, 0.1, 0.5),
                                0.3 + ((1 - 0.2) * 2.0 - 1.5) / 0.1, rtol=1e-6)
     # at a fall the value is 0
-    np.testing.assert_allclose(ac.terminal_td_error(-1.0, 0.8, 0.01),
-                               ac.td_error(-1.0, 0.0, 0.8, 0.01, 1.0), rtol=1e-6)
+    np.testing.assert_allclose(ac.terminal_td_error(-1.0, 0.8), -1.8, rtol=1e-6)
 
 
 def test_learner_update_rates_and_safeguards():
@@ -143,7 +142,7 @@ def test_learner_update_rates_and_safeguards():
     assert weights.sigma.shape == () and weights.critic.dtype == jnp.float32
     traces = ac.Traces(critic=jnp.ones(NUM_BASIS), mean=jnp.ones(NUM_BASIS),
                        sigma=jnp.float32(1.0))
-    params = ac.LearnerParams(rate_scale=0.1)
+    params = ac.LearnerParams(rate_scale=0.1, w_sigma_bounds=None)
     new = ac.learner_update(params, weights, traces, jnp.float32(100.0), 0.01)
     np.testing.assert_allclose(new.critic, 7.8, rtol=1e-5)
     np.testing.assert_allclose(new.mean, 19.5, rtol=1e-5)
@@ -199,7 +198,7 @@ def test_cached_previous_value_diverges_at_printed_rates():
     x, reward = jnp.array([0.3, -0.5]), jnp.float32(1.0)
     diverged = _stationary_values(PRINTED, 0.008, 400, True, x, reward, key)
     assert not np.all(np.abs(np.asarray(diverged)) < 10.0)
-    scaled = ac.LearnerParams(rate_scale=0.1)
+    scaled = ac.LearnerParams(rate_scale=0.1, w_sigma_bounds=None)
     values = _stationary_values(scaled, 0.008, 2000, True, x, reward, key)
     np.testing.assert_allclose(values[-1], 1.0, rtol=0.02)
 

@@ -1,0 +1,132 @@
+"""Run directories: config, orbax checkpoints every chunk, resume, results.
+
+``DIR/config.json`` (the run spec and engine), ``DIR/checkpoints/`` (orbax, the full state:
+physics, CPG, learner weights, traces, RNG keys, bookkeeping), ``DIR/summary.json``.
+A run resumed from its last checkpoint ends exactly as an uninterrupted one: chunk
+boundaries and every random draw are functions of the config and seeds alone.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+from mjxcpg import config, train
+from mjxcpg.sim import Simulation, make_simulation
+
+
+class RunError(ValueError):
+    """A run directory that cannot be used as asked."""
+
+
+def _leaves(state: Any) -> dict:
+    return {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state))}
+
+
+def _manager(out: Path) -> ocp.CheckpointManager:
+    return ocp.CheckpointManager(out.resolve() / "checkpoints",
+                                 options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
+
+
+def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, force: bool) -> tuple:
+    """Check the directory, build the simulation and the starting state (fresh or resumed)."""
+    config_path = out / "config.json"
+    record = {"spec": config.spec_to_dict(spec), "engine": engine}
+    if out.exists() and any(out.iterdir()):
+        if resume and config_path.is_file():
+            saved = json.loads(config_path.read_text())
+            if saved["spec"] != record["spec"]:
+                raise RunError(f"{out} holds a run of another config; use a new --out")
+            engine = engine or saved["engine"]
+        elif force:
+            shutil.rmtree(out)
+        elif resume:
+            raise RunError(f"{out} is not a run directory (no config.json); nothing to resume")
+        else:
+            raise RunError(f"{out} exists; pass --resume to continue it or --force to replace it")
+    sim = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
+    record["engine"] = sim.engine.name
+    task = train.make_task(sim, spec)
+    state = train.init_run(sim, task, spec)
+    out.mkdir(parents=True, exist_ok=True)
+    manager = _manager(out)
+    if manager.latest_step() is not None:
+        state = restore_state(manager, state)
+    else:
+        config_path.write_text(json.dumps(record, indent=1))
+    return sim, task, state, manager
+
+
+def restore_state(manager: ocp.CheckpointManager, template: Any, step: int | None = None) -> Any:
+    step = manager.latest_step() if step is None else step
+    leaves = manager.restore(step, args=ocp.args.StandardRestore(_leaves(template)))
+    treedef = jax.tree.structure(template)
+    return jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves[k]) for k in sorted(leaves)])
+
+
+def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
+            force: bool = False, progress: bool = True) -> tuple[Simulation, train.Task, train.RunState, float]:
+    """Run (or resume) to the end, checkpointing after every chunk; Ctrl-C stops cleanly.
+
+    Returns the simulation, task, final state and the wall time of this session."""
+    from tqdm import tqdm
+
+    sim, task, state, manager = prepare(out, spec, engine, resume, force)
+    total = spec.batch * spec.trial.max_trials
+    bar = tqdm(total=total, unit="trial", disable=not progress, dynamic_ncols=True)
+    chunk_index = [manager.latest_step() or 0]
+    start = time.perf_counter()
+    bar.update(train.progress_counts(task, state.learners)["trials"])
+
+    def on_chunk(new_state: train.RunState, counts: dict) -> None:
+        chunk_index[0] += 1
+        manager.save(chunk_index[0], args=ocp.args.StandardSave(_leaves(new_state)))
+        bar.update(counts["trials"] - bar.n)
+        bar.set_postfix(succeeded=f"{counts['succeeded']}/{spec.batch}",
+                        done=counts["done"], steps_per_s=f"{counts['robot_steps_per_s']:.0f}")
+
+    try:
+        state = train.run_until_done(sim, task, spec, state, on_chunk)
+    except KeyboardInterrupt:
+        manager.wait_until_finished()
+        bar.close()
+        raise
+    manager.wait_until_finished()
+    bar.close()
+    return sim, task, state, time.perf_counter() - start
+
+
+def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0):
+    """The spec, simulation, task and final state of a finished or interrupted run."""
+    config_path = out / "config.json"
+    if not out.is_dir():
+        raise RunError(f"no run directory at {out}")
+    if not config_path.is_file():
+        raise RunError(f"{out} has no config.json; not a run directory")
+    try:
+        record = json.loads(config_path.read_text())
+        spec = config.spec_from_dict(record["spec"])
+    except (json.JSONDecodeError, KeyError, TypeError) as error:
+        raise RunError(f"{config_path} is damaged: {error}") from None
+    manager = _manager(out)
+    if manager.latest_step() is None:
+        raise RunError(f"{out} has no checkpoint")
+    sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
+                          physics_dt=spec.physics_dt)
+    task = train.make_task(sim, spec)
+    template = train.init_run(sim, task, spec) if (engine or record["engine"]) == record["engine"] else None
+    if template is None:  # another engine: restore with the recorded engine's layout
+        recorded = make_simulation(record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
+        template = train.init_run(recorded, task, spec)
+    try:
+        state = restore_state(manager, template)
+    except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
+        raise RunError(f"cannot read the checkpoint in {out}: {str(error).splitlines()[0][:200]}") from None
+    return spec, sim, task, state
