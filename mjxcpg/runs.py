@@ -8,6 +8,7 @@ boundaries and every random draw are functions of the config and seeds alone.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import time
@@ -26,8 +27,15 @@ class RunError(ValueError):
     """A run directory that cannot be used as asked."""
 
 
-def _leaves(state: Any) -> dict:
-    return {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state))}
+def _fingerprint(spec: train.RunSpec) -> np.ndarray:
+    """The config's identity, stored in every checkpoint beside the state."""
+    text = json.dumps(config.spec_to_dict(spec), sort_keys=True).encode()
+    return np.frombuffer(hashlib.sha256(text).digest(), np.uint8)
+
+
+def _leaves(state: Any, spec: train.RunSpec) -> dict:
+    leaves = {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state))}
+    return leaves | {"config_sha256": _fingerprint(spec)}
 
 
 def _manager(out: Path) -> ocp.CheckpointManager:
@@ -58,15 +66,26 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
     out.mkdir(parents=True, exist_ok=True)
     manager = _manager(out)
     if manager.latest_step() is not None:
-        state = restore_state(manager, state)
+        try:
+            state = restore_state(manager, state, spec)
+        except RunError:
+            raise
+        except Exception as error:  # orbax raises many types for a damaged checkpoint
+            raise RunError(f"cannot resume from {out}: {str(error).splitlines()[0][:200]}") from None
     else:
         config_path.write_text(json.dumps(record, indent=1))
     return sim, task, state, manager
 
 
-def restore_state(manager: ocp.CheckpointManager, template: Any, step: int | None = None) -> Any:
-    step = manager.latest_step() if step is None else step
-    leaves = manager.restore(step, args=ocp.args.StandardRestore(_leaves(template)))
+def restore_state(manager: ocp.CheckpointManager, template: Any, spec: train.RunSpec) -> Any:
+    """The latest checkpoint, checked against the config that asks for it."""
+    expected = _leaves(template, spec)
+    leaves = manager.restore(manager.latest_step(), args=ocp.args.StandardRestore(expected))
+    if not np.array_equal(leaves.pop("config_sha256"), expected.pop("config_sha256")):
+        raise RunError("the checkpoint was written by another config")
+    for key, value in expected.items():
+        if leaves[key].shape != value.shape or leaves[key].dtype != value.dtype:
+            raise RunError("the checkpoint does not match this config's state")
     treedef = jax.tree.structure(template)
     return jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves[k]) for k in sorted(leaves)])
 
@@ -87,7 +106,7 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
 
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
         chunk_index[0] += 1
-        manager.save(chunk_index[0], args=ocp.args.StandardSave(_leaves(new_state)))
+        manager.save(chunk_index[0], args=ocp.args.StandardSave(_leaves(new_state, spec)))
         bar.update(counts["trials"] - bar.n)
         bar.set_postfix(succeeded=f"{counts['succeeded']}/{spec.batch}",
                         done=counts["done"], steps_per_s=f"{counts['robot_steps_per_s']:.0f}")
@@ -126,7 +145,9 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0):
         recorded = make_simulation(record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
         template = train.init_run(recorded, task, spec)
     try:
-        state = restore_state(manager, template)
+        state = restore_state(manager, template, spec)
+    except RunError:
+        raise
     except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
         raise RunError(f"cannot read the checkpoint in {out}: {str(error).splitlines()[0][:200]}") from None
     return spec, sim, task, state

@@ -1,0 +1,137 @@
+"""The lockstep batch: resume gives identical results, a diverged robot is a counted fall,
+the C engines agree, checkpoints reload, bad input is refused."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxcpg import config, runs, train
+from mjxcpg.cli import main
+from mjxcpg.sim import make_simulation
+
+
+@pytest.fixture(scope="module")
+def quick_spec():
+    return config.load_spec("quick")
+
+
+@pytest.fixture(scope="module")
+def finished_quick(tmp_path_factory, quick_spec):
+    out = tmp_path_factory.mktemp("quick") / "run"
+    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native"]) == 0
+    return out
+
+
+def test_sweep_writes_the_report(finished_quick, quick_spec):
+    summary = json.loads((finished_quick / "summary.json").read_text())
+    assert len(summary["learners"]) == quick_spec.batch
+    for learner in summary["learners"]:
+        assert {"k_s", "seed", "succeeded", "trials_to_success", "mean_vx"} <= set(learner)
+    assert "| all |" in (finished_quick / "table1.md").read_text()
+    assert list(finished_quick.glob("policy_map_*.png")) and list(finished_quick.glob("learning_curve_*.png"))
+
+
+def test_sigkill_then_resume_matches_uninterrupted_run(finished_quick, tmp_path):
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "mjxcpg", "sweep", "--config", "quick", "--out", str(out), "--quiet",
+           "--engine", "native"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        if len([p for p in (out / "checkpoints").glob("[0-9]*") if p.is_dir()]) >= 1:
+            proc.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.05)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL, "the run finished before it could be killed"
+    subprocess.run(cmd + ["--resume"], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    expected = json.loads((finished_quick / "returns.json").read_text())
+    assert json.loads((out / "returns.json").read_text()) == expected
+    assert (json.loads((out / "summary.json").read_text())["learners"]
+            == json.loads((finished_quick / "summary.json").read_text())["learners"])
+
+
+def test_existing_output_is_never_overwritten(finished_quick, capsys):
+    before = (finished_quick / "returns.json").read_text()
+    assert main(["sweep", "--config", "quick", "--out", str(finished_quick), "--quiet"]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (finished_quick / "returns.json").read_text() == before
+
+
+def test_walk_with_a_learned_policy(finished_quick, capsys):
+    assert main(["walk", "--checkpoint", str(finished_quick), "--learner", "1", "--seconds", "2",
+                 "--engine", "mujoco", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["controller"] == "learned" and result["seconds"] > 0
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated", "other-config"])
+def test_bad_checkpoint_is_one_line_error(finished_quick, tmp_path, damage, capsys):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_quick, run)
+    if damage == "missing":
+        shutil.rmtree(run / "checkpoints")
+    elif damage == "truncated":
+        for f in (run / "checkpoints").rglob("*"):
+            if f.is_file() and f.stat().st_size > 0:
+                f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
+    else:
+        record = json.loads((run / "config.json").read_text())
+        record["spec"]["k_s"] = [1.0, 2.0]
+        record["spec"]["seeds"] = [0, 1]
+        (run / "config.json").write_text(json.dumps(record))
+    assert main(["walk", "--checkpoint", str(run), "--seconds", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mjxcpg: error:") and "\n" not in err
+
+
+def test_diverged_robot_is_a_counted_fall_and_others_are_untouched(quick_spec):
+    sim = make_simulation("mujoco", params=quick_spec.controller)
+    task = train.make_task(sim, quick_spec)
+    chunk = train.make_chunk(sim, task, 50)
+    initial = sim.engine.init(sim.qpos0, quick_spec.batch)
+    clean = train.init_run(sim, task, quick_spec)
+    poisoned = clean._replace(physics=clean.physics._replace(
+        physics=clean.physics.physics.at[1, 1:4].set(jnp.nan)))
+    a, b = chunk(clean, initial), chunk(poisoned, initial)
+    assert int(b.learners.book.trial[1]) == 1 and bool(b.learners.book.falls[1, 0])
+    assert int(a.learners.book.trial[1]) == 0
+    for i in (0, 2):
+        np.testing.assert_array_equal(a.physics.physics[i], b.physics.physics[i])
+        for x, y in zip(jax.tree.leaves(jax.tree.map(lambda t: t[i], a.learners)),
+                        jax.tree.leaves(jax.tree.map(lambda t: t[i], b.learners))):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_native_batch_equals_scalar_engine(quick_spec):
+    results = []
+    for engine in ("mujoco", "native"):
+        sim = make_simulation(engine, params=quick_spec.controller)
+        task = train.make_task(sim, quick_spec)
+        run = train.make_chunk(sim, task, 300)(train.init_run(sim, task, quick_spec),
+                                               sim.engine.init(sim.qpos0, quick_spec.batch))
+        results.append(jax.device_get(run))
+    for x, y in zip(jax.tree.leaves(results[0]), jax.tree.leaves(results[1])):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("k_s = [1.0]\nseeds = [0]\nbogus = 1\n", "bogus"),
+    ("k_s = [1.0]\nseeds = [0]\n[trial]\nmax_trials = 'many'\n", "trial.max_trials"),
+    ("k_s = [1.0]\nseeds = [0]\n[trial]\nmax_trials = 0\n", "trial.max_trials"),
+    ("k_s = [1.0, 2.0]\nseeds = [0]\n", "seeds"),
+])
+def test_bad_config_names_the_key(tmp_path, text, key):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=key.replace(".", r"\.").replace("[", r"\[")):
+        config.load_spec(str(path))
