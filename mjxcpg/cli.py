@@ -99,11 +99,9 @@ def cmd_learn(args: argparse.Namespace) -> dict:
               "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
               "returns": returns["returns"], "falls": returns["falls"]}
     (out / "learn.json").write_text(json.dumps(result, indent=1))
-    from mjxcpg import plots
-
     (out / "learning_curve_ks{:g}.png".format(args.k_s)).rename(out / "learning_curve.png")
     (out / "policy_map_00.png").rename(out / "policy_map.png")
-    return {k: v for k, v in result.items() if k not in ("returns", "falls")} | {"plots": bool(plots)}
+    return {k: v for k, v in result.items() if k not in ("returns", "falls")}
 
 
 def cmd_sweep(args: argparse.Namespace) -> dict:
