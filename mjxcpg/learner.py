@@ -89,9 +89,6 @@ class Task:
     def trial_steps(self) -> int:
         return round(self.trial.trial_seconds / self.dt)
 
-    def __hash__(self):
-        return id(self)
-
 
 def reward(trial: TrialParams, k_s: jax.Array, height: jax.Array, forward_velocity: jax.Array) -> jax.Array:
     """Eq (27): r = k_H (h1 - h') + k_S v_x."""
