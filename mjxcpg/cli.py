@@ -43,6 +43,7 @@ def cmd_walk(args: argparse.Namespace) -> dict:
     import jax.numpy as jnp
 
     from mjxcpg import walk
+    from mjxcpg.controller import roll_rate_feedback
     from mjxcpg.sim import make_simulation
 
     if args.checkpoint is not None:
@@ -61,7 +62,7 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         if args.controller == "in-place":
             sim.params = dataclasses.replace(sim.params, amp_x=0.0)
         gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[args.controller]
-        feedback = lambda obs, k: k * obs.gyro[0]  # noqa: E731  the hand-designed a_5 with gain k
+        feedback = roll_rate_feedback
         fb_params = jnp.array([gain])
     steps = round(args.seconds / sim.control_dt)
     run = walk.make_walk(sim.engine, sim.layout, sim.params, steps, feedback)

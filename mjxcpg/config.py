@@ -15,10 +15,6 @@ import typing
 from pathlib import Path
 from typing import Any
 
-from mjxcpg import actor_critic as ac
-from mjxcpg.controller import ControllerParams
-from mjxcpg.cpg import CPGParams
-from mjxcpg.learner import TrialParams
 from mjxcpg.train import RunSpec
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
@@ -120,6 +116,3 @@ def spec_to_dict(spec: RunSpec) -> dict:
 def spec_from_dict(data: dict) -> RunSpec:
     return validate(from_dict(RunSpec, data))
 
-
-__all__ = ["load_spec", "spec_to_dict", "spec_from_dict", "from_dict", "validate",
-           "RunSpec", "TrialParams", "ControllerParams", "CPGParams", "ac"]

@@ -43,13 +43,18 @@ def reflex_feedback(params: ControllerParams, layout: Layout, obs: Observation) 
     return extensor_response + vestibulospinal_reflex
 
 
+def roll_rate_feedback(obs: Observation, gain: jax.Array) -> jax.Array:
+    """a_5 = gain d(theta_roll)/dt, the form of the hand-designed feedback with any gain."""
+    return gain * obs.gyro[0]
+
+
 def hand_feedback(params: ControllerParams, obs: Observation) -> jax.Array:
     """The hand-designed propulsive feedback that starts every trial: a_5 = K d(theta_roll)/dt.
 
     Roll rate is in phase with the lateral weight shift, so feeding it to the quad-element
     oscillator pulls the swing leg forward while the body rolls onto the stance leg.
     """
-    return params.hand_gain * obs.gyro[0]
+    return roll_rate_feedback(obs, params.hand_gain)
 
 
 def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array) -> jax.Array:

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mjxcpg.pytree import tree_where
 from mjxcpg.robot import Sensors
 
 ENGINES = ("mujoco", "native", "mjx")
@@ -37,14 +38,6 @@ _FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 def default_engine() -> str:
     """MJX when JAX sees an accelerator, the native C batch otherwise."""
     return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "native"
-
-
-def select_robots(mask: jax.Array, when_true: Any, when_false: Any) -> Any:
-    """Per robot (leading axis), take ``when_true`` where ``mask`` holds."""
-    def pick(a, b):
-        m = mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim))
-        return jnp.where(m, a, b)
-    return jax.tree.map(pick, when_true, when_false)
 
 
 class Engine(abc.ABC):
@@ -70,7 +63,7 @@ class Engine(abc.ABC):
 
     def reset(self, state: Any, initial: Any, mask: jax.Array) -> Any:
         """Put the robots where ``mask`` holds back to ``initial``."""
-        return select_robots(mask, initial, state)
+        return tree_where(mask, initial, state)
 
 
 class CState(NamedTuple):

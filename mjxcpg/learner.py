@@ -29,6 +29,7 @@ import jax.numpy as jnp
 
 from mjxcpg import actor_critic as ac
 from mjxcpg import cpg, ngnet, policy
+from mjxcpg.pytree import tree_where
 from mjxcpg.controller import ControllerParams, control_step, hand_feedback, joint_targets
 from mjxcpg.robot import Layout, Observation, Sensors, observe
 from mjxcpg.walk import has_fallen
@@ -145,18 +146,16 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
         fell, ac.terminal_td_error(task.trial.fall_reward, previous_value),
         ac.td_error(r, ngnet.ngnet_value(state.weights.critic, b), previous_value, task.dt, p.tau))
     update = acting & state.has_previous & ~frozen
-    weights = jax.tree.map(lambda new, old: jnp.where(update, new, old),
-                           ac.learner_update(p, state.weights, state.traces, delta, task.dt),
-                           state.weights)
+    weights = tree_where(update, ac.learner_update(p, state.weights, state.traces, delta, task.dt),
+                         state.weights)
 
     key, noise_key, handover_key = jax.random.split(state.key, 3)
     mean = ngnet.ngnet_value(weights.mean, b)
     std = ngnet.policy_std(weights.sigma)
     v = policy.sample_action(mean, std, jax.random.normal(noise_key))
     a5 = jnp.where(acting, policy.feedback_action(v, p.a_max), hand_feedback(task.controller, obs))
-    traces = jax.tree.map(lambda new, old: jnp.where(acting, new, old),
-                          ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt),
-                          state.traces)
+    traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt),
+                        state.traces)
     cpg_state, ctrl = control_step(task.controller, task.layout, state.cpg, obs, a5)
 
     trial_return = book.trial_return + jnp.where(
@@ -177,12 +176,11 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
         returns=book.returns.at[index].set(jnp.where(record, trial_return, book.returns[index])),
         falls=book.falls.at[index].set(jnp.where(record, fell, book.falls[index])),
     )
-    fresh_cpg = cpg.init_state()
     state = LearnerState(
         k_s=state.k_s, key=key,
-        cpg=jax.tree.map(lambda a, b_: jnp.where(ended, a, b_), fresh_cpg, cpg_state),
+        cpg=tree_where(ended, cpg.init_state(), cpg_state),
         weights=weights,
-        traces=jax.tree.map(lambda t: jnp.where(ended, jnp.zeros_like(t), t), traces),
+        traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
         previous_basis=b, has_previous=acting & ~ended, book=book,
     )
     return state, jnp.where(ended, home_ctrl, ctrl), ended
@@ -190,7 +188,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
 
 def home_ctrl(task: Task) -> jax.Array:
     """Servo targets of the standing pose that every trial starts from."""
-    return joint_targets(task.controller, task.layout, cpg.output(cpg.init_state()) * 0.0)
+    return joint_targets(task.controller, task.layout, jnp.zeros(6))
 
 
 def policy_mean_feedback(task: Task):

@@ -66,12 +66,7 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
     out.mkdir(parents=True, exist_ok=True)
     manager = _manager(out)
     if manager.latest_step() is not None:
-        try:
-            state = restore_state(manager, state, spec)
-        except RunError:
-            raise
-        except Exception as error:  # orbax raises many types for a damaged checkpoint
-            raise RunError(f"cannot resume from {out}: {str(error).splitlines()[0][:200]}") from None
+        state = restore_state(manager, state, spec)
     else:
         config_path.write_text(json.dumps(record, indent=1))
     return sim, task, state, manager
@@ -80,7 +75,10 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
 def restore_state(manager: ocp.CheckpointManager, template: Any, spec: train.RunSpec) -> Any:
     """The latest checkpoint, checked against the config that asks for it."""
     expected = _leaves(template, spec)
-    leaves = manager.restore(manager.latest_step(), args=ocp.args.StandardRestore(expected))
+    try:
+        leaves = manager.restore(manager.latest_step(), args=ocp.args.StandardRestore(expected))
+    except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
+        raise RunError(f"cannot read the checkpoint: {str(error).splitlines()[0][:200]}") from None
     if not np.array_equal(leaves.pop("config_sha256"), expected.pop("config_sha256")):
         raise RunError("the checkpoint was written by another config")
     for key, value in expected.items():
@@ -140,14 +138,8 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0):
     sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
                           physics_dt=spec.physics_dt)
     task = train.make_task(sim, spec)
-    template = train.init_run(sim, task, spec) if (engine or record["engine"]) == record["engine"] else None
-    if template is None:  # another engine: restore with the recorded engine's layout
-        recorded = make_simulation(record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
-        template = train.init_run(recorded, task, spec)
-    try:
-        state = restore_state(manager, template, spec)
-    except RunError:
-        raise
-    except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
-        raise RunError(f"cannot read the checkpoint in {out}: {str(error).splitlines()[0][:200]}") from None
+    # The checkpoint holds the physics in the recorded engine's layout.
+    recorded = sim if sim.engine.name == record["engine"] else make_simulation(
+        record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
+    state = restore_state(manager, train.init_run(recorded, task, spec), spec)
     return spec, sim, task, state

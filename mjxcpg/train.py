@@ -16,7 +16,7 @@ from mjxcpg import actor_critic as ac
 from mjxcpg import ngnet
 from mjxcpg.controller import ControllerParams
 from mjxcpg.learner import LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step
-from mjxcpg.sim import Simulation, make_simulation
+from mjxcpg.sim import Simulation
 
 
 class RunState(NamedTuple):
@@ -107,13 +107,12 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     steps = round(spec.chunk_seconds / task.dt)
     chunk = chunk_fn or make_chunk(sim, task, steps)
     initial = sim.engine.init(sim.qpos0, spec.batch)
-    while True:
-        counts = progress_counts(task, state.learners)
-        if counts["done"] == spec.batch:
-            return state
+    counts = progress_counts(task, state.learners)
+    while counts["done"] < spec.batch:
         start = time.perf_counter()
         state = jax.block_until_ready(chunk(state, initial))
         counts = progress_counts(task, state.learners)
         counts["robot_steps_per_s"] = spec.batch * steps * sim.engine.substeps / (time.perf_counter() - start)
         if on_chunk is not None:
             on_chunk(state, counts)
+    return state

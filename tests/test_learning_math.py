@@ -8,7 +8,6 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from mjxcpg import actor_critic as ac
 from mjxcpg import ngnet, policy

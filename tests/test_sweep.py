@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxcpg import config, runs, train
+from mjxcpg import config, train
 from mjxcpg.cli import main
 from mjxcpg.sim import make_simulation
 
