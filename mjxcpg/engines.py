@@ -54,8 +54,9 @@ class Engine(abc.ABC):
         """``batch`` robots at rest in pose ``qpos``, sensors read."""
 
     @abc.abstractmethod
-    def step(self, state: Any, ctrl: jax.Array) -> Any:
-        """Advance every robot by ``substeps`` physics steps under servo targets ``ctrl``."""
+    def step(self, state: Any, ctrl: jax.Array, active: jax.Array | None = None) -> Any:
+        """Advance the robots where ``active`` holds (all when None) by ``substeps`` physics
+        steps under servo targets ``ctrl``; the others keep their state."""
 
     @abc.abstractmethod
     def sensors(self, state: Any) -> Sensors:
@@ -97,24 +98,32 @@ class _CEngine(Engine):
                        qvel=state.physics[:, 1 + nq:1 + nq + nv],
                        sensordata=state.sensordata)
 
-    def step(self, state: CState, ctrl: jax.Array) -> CState:
+    def step(self, state: CState, ctrl: jax.Array, active: jax.Array | None = None) -> CState:
+        if active is None:
+            active = jnp.ones(state.physics.shape[0], bool)
         shapes = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
                   jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
         physics, sensordata = jax.pure_callback(
-            self._host_step, shapes, state.physics, ctrl.astype(jnp.float32),
-            vmap_method="sequential")
+            self._host_step, shapes, state.physics, state.sensordata, ctrl.astype(jnp.float32),
+            active, vmap_method="sequential")
         return CState(physics=physics, sensordata=sensordata)
 
-    def _host_step(self, physics: np.ndarray, ctrl: np.ndarray):
-        physics = np.asarray(physics, np.float64)
-        new_physics, sensordata = self._simulate(physics, np.asarray(ctrl, np.float64))
+    def _host_step(self, physics: np.ndarray, sensordata: np.ndarray, ctrl: np.ndarray,
+                   active: np.ndarray):
+        new_physics, new_sensordata = np.array(physics), np.array(sensordata)
+        rows = np.flatnonzero(active)
+        if rows.size == 0:
+            return new_physics, new_sensordata
+        start = np.asarray(physics[rows], np.float64)
+        stepped, stepped_sensors = self._simulate(start, np.asarray(ctrl[rows], np.float64))
         # MuJoCo resets a diverged simulation to time 0: report it as NaN instead.
-        elapsed = new_physics[:, 0] - physics[:, 0]
+        elapsed = stepped[:, 0] - start[:, 0]
         diverged = ~np.isclose(elapsed, self.substeps * self.model.opt.timestep, rtol=1e-3, atol=1e-6)
-        diverged |= ~np.isfinite(new_physics).all(axis=1)
-        new_physics[diverged] = np.nan
-        sensordata[diverged] = np.nan
-        return new_physics.astype(np.float32), sensordata.astype(np.float32)
+        diverged |= ~np.isfinite(stepped).all(axis=1)
+        stepped[diverged] = np.nan
+        stepped_sensors[diverged] = np.nan
+        new_physics[rows], new_sensordata[rows] = stepped, stepped_sensors
+        return new_physics, new_sensordata
 
     @abc.abstractmethod
     def _simulate(self, physics: np.ndarray, ctrl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -186,14 +195,16 @@ class MjxEngine(Engine):
     def sensors(self, state) -> Sensors:
         return Sensors(qpos=state.qpos, qvel=state.qvel, sensordata=state.sensordata)
 
-    def step(self, state, ctrl: jax.Array):
+    def step(self, state, ctrl: jax.Array, active: jax.Array | None = None):
         mjx, model = self._mjx, self.mjx_model
 
         def one_robot(data, u):
             data = data.replace(ctrl=u)
             return jax.lax.fori_loop(0, self.substeps, lambda _, d: mjx.step(model, d), data)
 
-        return jax.vmap(one_robot)(state, ctrl)
+        stepped = jax.vmap(one_robot)(state, ctrl)
+        # In lockstep every robot costs the same, so idle ones are stepped and discarded.
+        return stepped if active is None else tree_where(active, stepped, state)
 
 
 def make_engine(name: str, model: mujoco.MjModel, substeps: int) -> Engine:

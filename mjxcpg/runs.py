@@ -76,14 +76,15 @@ def restore_state(manager: ocp.CheckpointManager, template: Any, spec: train.Run
     """The latest checkpoint, checked against the config that asks for it."""
     expected = _leaves(template, spec)
     try:
-        leaves = manager.restore(manager.latest_step(), args=ocp.args.StandardRestore(expected))
+        # Restored as saved, not onto ``expected``: a foreign tree is then ours to report.
+        leaves = dict(manager.restore(manager.latest_step(), args=ocp.args.StandardRestore()))
     except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
         raise RunError(f"cannot read the checkpoint: {str(error).splitlines()[0][:200]}") from None
-    if not np.array_equal(leaves.pop("config_sha256"), expected.pop("config_sha256")):
+    if not np.array_equal(leaves.pop("config_sha256", None), expected.pop("config_sha256")):
         raise RunError("the checkpoint was written by another config")
-    for key, value in expected.items():
-        if leaves[key].shape != value.shape or leaves[key].dtype != value.dtype:
-            raise RunError("the checkpoint does not match this config's state")
+    if leaves.keys() != expected.keys() or any(
+            leaves[k].shape != v.shape or leaves[k].dtype != v.dtype for k, v in expected.items()):
+        raise RunError("the checkpoint does not match this version's state; rerun without --resume")
     treedef = jax.tree.structure(template)
     return jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves[k]) for k in sorted(leaves)])
 

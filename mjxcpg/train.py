@@ -59,12 +59,14 @@ def make_chunk(sim: Simulation, task: Task, steps: int) -> Callable[[RunState], 
     engine = sim.engine
     home = home_ctrl(task)
     step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None))
+    learners_done = jax.vmap(functools.partial(is_done, task))
 
     def body(carry: tuple[RunState, Any], _):
         run, initial = carry
         learners, ctrl, ended = step_learners(run.learners, engine.sensors(run.physics), home)
         physics = engine.reset(run.physics, initial, ended)
-        physics = engine.step(physics, ctrl)
+        # A finished learner's robot stands still: the C engines then skip it.
+        physics = engine.step(physics, ctrl, ~learners_done(learners))
         return (RunState(physics, learners), initial), None
 
     @jax.jit
