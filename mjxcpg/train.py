@@ -77,6 +77,24 @@ def make_chunk(sim: Simulation, task: Task, steps: int) -> Callable[[RunState], 
     return chunk
 
 
+def learner_sharding(batch: int) -> jax.sharding.NamedSharding:
+    """The learner axis split over as many of JAX's devices as divide the batch evenly.
+
+    Each device keeps at least two learners: XLA compiles a batch of one differently (its
+    degenerate axis is dropped), which would change results in the last bit.
+    """
+    devices = jax.devices()
+    count = max(n for n in range(1, len(devices) + 1)
+                if batch % n == 0 and (n == 1 or batch // n >= 2))
+    mesh = jax.sharding.Mesh(np.array(devices[:count]), ("learners",))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("learners"))
+
+
+def shard_learners(tree: Any, batch: int) -> Any:
+    """Place every leaf (leading axis = learners) across the devices; a no-op on one device."""
+    return jax.device_put(tree, learner_sharding(batch))
+
+
 def progress_counts(task: Task, learners: LearnerState) -> dict:
     book = jax.device_get(learners.book)
     return {
@@ -108,13 +126,15 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     """Python loop over jitted chunks until every learner has succeeded or used its budget."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = chunk_fn or make_chunk(sim, task, steps)
-    initial = sim.engine.init(sim.qpos0, spec.batch)
+    initial = shard_learners(sim.engine.init(sim.qpos0, spec.batch), spec.batch)
+    state = shard_learners(state, spec.batch)
     counts = progress_counts(task, state.learners)
     while counts["done"] < spec.batch:
         start = time.perf_counter()
+        active = spec.batch - counts["done"]
         state = jax.block_until_ready(chunk(state, initial))
         counts = progress_counts(task, state.learners)
-        counts["robot_steps_per_s"] = spec.batch * steps * sim.engine.substeps / (time.perf_counter() - start)
+        counts["robot_steps_per_s"] = active * steps * sim.engine.substeps / (time.perf_counter() - start)
         if on_chunk is not None:
             on_chunk(state, counts)
     return state
