@@ -95,13 +95,33 @@ def shard_learners(tree: Any, batch: int) -> Any:
     return jax.device_put(tree, learner_sharding(batch))
 
 
+def done_mask(task: Task, learners: LearnerState) -> np.ndarray:
+    """Which learners have succeeded or used their budget, on the host."""
+    return np.asarray(is_done(task, jax.device_get(learners)))
+
+
 def progress_counts(task: Task, learners: LearnerState) -> dict:
     book = jax.device_get(learners.book)
     return {
         "trials": int(np.sum(book.trial)),
         "succeeded": int(np.sum(book.trials_to_success >= 0)),
-        "done": int(np.sum(jax.device_get(jax.vmap(functools.partial(is_done, task))(learners)))),
+        "done": int(np.sum(done_mask(task, learners))),
     }
+
+
+def compacted_rows(done: np.ndarray) -> np.ndarray | None:
+    """The learners a chunk runs once many have finished: the unfinished ones, padded with
+    finished ones to a power of two (at least 2), or None for the whole batch.
+
+    A finished learner is frozen, so leaving it out changes nothing but the cost: the
+    controller and learner run for fewer robots.  Sizes come from a short ladder (each is
+    compiled once), and a batch never shrinks to one, which XLA compiles differently.
+    """
+    batch, active = len(done), int(np.sum(~done))
+    size = max(2, 1 << max(active - 1, 0).bit_length())
+    if size > batch // 2:
+        return None
+    return np.sort(np.concatenate([np.flatnonzero(~done), np.flatnonzero(done)[:size - active]]))
 
 
 def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
@@ -120,21 +140,33 @@ def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
     return out
 
 
+def _put_rows(rows: np.ndarray, whole: jax.Array, part: jax.Array) -> np.ndarray:
+    whole = np.array(whole)  # on the host: ``part`` may live on fewer devices than ``whole``
+    whole[rows] = np.asarray(part)
+    return whole
+
+
 def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
                    on_chunk: Callable[[RunState, dict], None] | None = None,
                    chunk_fn: Callable | None = None) -> RunState:
     """Python loop over jitted chunks until every learner has succeeded or used its budget."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = chunk_fn or make_chunk(sim, task, steps)
-    initial = shard_learners(sim.engine.init(sim.qpos0, spec.batch), spec.batch)
-    state = shard_learners(state, spec.batch)
-    counts = progress_counts(task, state.learners)
-    while counts["done"] < spec.batch:
+    initial = sim.engine.init(sim.qpos0, spec.batch)
+    done = done_mask(task, state.learners)
+    while not done.all():
         start = time.perf_counter()
-        active = spec.batch - counts["done"]
-        state = jax.block_until_ready(chunk(state, initial))
+        rows = compacted_rows(done)
+        if rows is None:
+            state = chunk(shard_learners(state, spec.batch), shard_learners(initial, spec.batch))
+        else:
+            take = functools.partial(jax.tree.map, lambda x: x[rows])
+            part = chunk(shard_learners(take(state), len(rows)), shard_learners(take(initial), len(rows)))
+            state = jax.tree.map(functools.partial(_put_rows, rows), state, part)
+        state = jax.block_until_ready(state)
         counts = progress_counts(task, state.learners)
-        counts["robot_steps_per_s"] = active * steps * sim.engine.substeps / (time.perf_counter() - start)
+        counts["robot_steps_per_s"] = np.sum(~done) * steps * sim.engine.substeps / (time.perf_counter() - start)
+        done = done_mask(task, state.learners)
         if on_chunk is not None:
             on_chunk(state, counts)
     return state
