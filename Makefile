@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-slow bench clean
+.PHONY: run test test-slow bench clean osmesa
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -14,10 +14,10 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-run: $(STAMP)
+run: $(STAMP) osmesa
 	$(BIN)/mjxcpg sweep --config paper --out runs/paper --resume
 
-test: $(STAMP)
+test: $(STAMP) osmesa
 	$(BIN)/pytest -q
 
 test-slow: $(STAMP)
@@ -25,6 +25,15 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/mjxcpg bench
+
+# Headless OpenGL for `mjxcpg render` (MUJOCO_GL=osmesa on machines without a GPU). A failed
+# install is a warning: only rendering needs it.
+osmesa:
+	@ldconfig -p 2>/dev/null | grep -q libOSMesa || { \
+	  command -v apt-get >/dev/null && \
+	  { apt-get install -y -qq libosmesa6 >/dev/null 2>&1 || \
+	    { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq libosmesa6 >/dev/null 2>&1; }; } || \
+	  echo "warning: could not install libosmesa6; 'mjxcpg render' needs OSMesa or a GPU with EGL" >&2; }
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -1,4 +1,7 @@
-"""The ``mjxcpg`` command line: walk, learn, sweep, bench."""
+"""The ``mjxcpg`` command line: walk, learn, sweep, eval, render, bench.
+
+MuJoCo is imported only inside the commands (and the parser), so that ``render`` can choose
+its headless OpenGL back end (``MUJOCO_GL``) before MuJoCo reads it, at import."""
 
 from __future__ import annotations
 
@@ -6,10 +9,9 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
 from pathlib import Path
-
-from mjxcpg.engines import ENGINES
 
 
 class UserError(Exception):
@@ -88,7 +90,14 @@ def cmd_learn(args: argparse.Namespace) -> dict:
     from mjxcpg.learner import TrialParams
     from mjxcpg.train import RunSpec
 
-    spec = validate(RunSpec(k_s=(args.k_s,), seeds=(args.seed,), trial=TrialParams(max_trials=args.trials)))
+    if args.from_run is not None:
+        return _learn_online(args)
+    if args.robot != "nominal" or args.reward is not None:
+        raise UserError("--robot and --reward need --from: learning from scratch runs on the nominal robot")
+    args.k_s = 10.0 if args.k_s is None else args.k_s
+    args.seed = 0 if args.seed is None else args.seed
+    spec = validate(RunSpec(k_s=(args.k_s,), seeds=(args.seed,),
+                            trial=TrialParams(max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
     summary = _learn_or_sweep(spec, args, out)
     learner = summary["learners"][0]
@@ -105,6 +114,44 @@ def cmd_learn(args: argparse.Namespace) -> dict:
     return {k: v for k, v in result.items() if k not in ("returns", "falls")}
 
 
+def _learn_online(args: argparse.Namespace) -> dict:
+    """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.online)."""
+    from mjxcpg import online
+
+    if args.k_s is not None or args.seed is not None:
+        raise UserError("--k-s and --seed come from the checkpoint with --from")
+    if args.resume:
+        raise UserError("--resume does not apply to --from; rerun with --force")
+    source = Path(args.from_run)
+    out = Path(args.out or f"runs/online_{source.name}_learner{args.learner}_{args.robot}")
+    trials = 400 if args.trials is None else args.trials
+    return online.learn_online(source, args.learner, out, trials=trials, robot=args.robot,
+                               reward=args.reward, engine=args.engine, force=args.force,
+                               progress=not args.quiet) | {"out": str(out)}
+
+
+def cmd_render(args: argparse.Namespace) -> dict:
+    from mjxcpg import render
+
+    out = Path(args.out or Path(args.run) / "render")
+    try:
+        return render.render_gait(Path(args.run), args.learner, out, seconds=args.seconds,
+                                  engine=args.engine, robot=args.robot)
+    except render.RenderError as error:
+        raise UserError(str(error)) from None
+
+
+def _choose_headless_gl(argv: list[str]) -> None:
+    """Before MuJoCo is imported: give ``render`` a headless OpenGL unless MUJOCO_GL is set."""
+    if argv[:1] != ["render"] or "MUJOCO_GL" in os.environ or "mujoco" in sys.modules:
+        return
+    from mjxcpg.render import headless_gl_backend
+
+    backend = headless_gl_backend()
+    if backend is not None:
+        os.environ["MUJOCO_GL"] = backend
+
+
 def cmd_sweep(args: argparse.Namespace) -> dict:
     from mjxcpg.config import load_spec
 
@@ -117,6 +164,63 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
             "wall_s": summary["wall_s"], "engine": summary["engine"]}
 
 
+def _nonnegative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}")
+    return value
+
+
+def cmd_eval(args: argparse.Namespace) -> dict:
+    """``eval --run DIR``: velocity (Fig 7), return map (Fig 8), slopes and pushes of the run's
+    final policies, all learners in one batch; JSON and PNG under OUT/eval, OUT/report.md."""
+    import dataclasses as dc
+
+    from mjxcpg import evaluate, report, train
+    from mjxcpg.runs import load_run
+
+    run_dir = Path(args.run)
+    spec, sim, task, state = load_run(run_dir, args.engine, robot=args.robot)
+    learners = args.learner if args.learner else list(range(spec.batch))
+    for k in learners:
+        if not 0 <= k < spec.batch:
+            raise UserError(f"--learner {k} is out of range: the run has {spec.batch} learner(s)")
+    overrides = {name: getattr(args, name) for name in (
+        "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
+        if getattr(args, name) is not None}
+    params = dc.replace(evaluate.EvalParams(), **overrides)
+    parts = [p for p in ("return_map", "slopes", "pushes") if p not in (args.skip or [])]
+    progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
+    result = evaluate.evaluate_run(spec, sim, task, state, learners, params, robot=args.robot,
+                                   parts=parts, progress=progress)
+    out = Path(args.out) if args.out else run_dir
+    table1_text = report.table1(train.learner_results(spec, state.learners))
+    summary = report.write_eval_report(run_dir, result, out, table1_text)
+    return {"report": str(out / "report.md"), "engine": result["engine"], "robot": args.robot, **summary}
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def cmd_bench(args: argparse.Namespace) -> dict | None:
+    """``bench``: robot-steps/s of every engine side by side (``mjxcpg.bench``).  The table goes
+    to stdout, or to stderr with --json so that stdout is the JSON report alone."""
+    from mjxcpg import bench
+
+    options = bench.Options(control_steps=args.control_steps, seconds=args.seconds,
+                            budget_seconds=args.budget_seconds)
+    log = None if args.quiet else (lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
+    result = bench.benchmark(args.engines, args.models, args.batches, args.workloads, options, log)
+    table = sys.stderr if args.json else sys.stdout
+    print(bench.format_table(result["results"], result["skipped"], args.engines), file=table)
+    print(bench.format_overheads(result["overheads"]), file=table)
+    return result if args.json else None
+
+
 def _print_result(result: dict, as_json: bool) -> None:
     if as_json:
         print(json.dumps(result))
@@ -127,6 +231,9 @@ def _print_result(result: dict, as_json: bool) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from mjxcpg.engines import ENGINES
+    from mjxcpg.sim import ROBOTS
+
     parser = _Parser(prog="mjxcpg", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -150,9 +257,18 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
     learn = sub.add_parser("learn", help="one learner learns the propulsive feedback a_5")
-    learn.add_argument("--k-s", type=float, default=10.0, help="velocity reward gain k_S of eq 27")
-    learn.add_argument("--seed", type=int, default=0)
-    learn.add_argument("--trials", type=int, default=1000, help="trial budget")
+    learn.add_argument("--k-s", type=float, default=None, help="velocity reward gain k_S of eq 27 (default 10)")
+    learn.add_argument("--seed", type=int, default=None, help="default 0")
+    learn.add_argument("--trials", type=int, default=None,
+                       help="trial budget (default 1000; 400 with --from)")
+    learn.add_argument("--from", dest="from_run", metavar="DIR",
+                       help="continue learner --learner of this run (online additional learning)")
+    learn.add_argument("--learner", type=int, default=0, help="learner index within --from's run")
+    learn.add_argument("--robot", choices=ROBOTS, default="nominal",
+                       help="robot to continue on with --from (hardware: docs/hardware.md)")
+    learn.add_argument("--reward", choices=("estimate", "truth"), default=None,
+                       help="with --from: reward from the robot's sensors (default on hardware) "
+                            "or the simulator's state (default on nominal)")
     run_options(learn)
     learn.set_defaults(handler=cmd_learn)
 
@@ -160,10 +276,69 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--config", default="paper", help="a name in configs/ or a .toml/.json path")
     run_options(sweep)
     sweep.set_defaults(handler=cmd_sweep)
+
+    rend = sub.add_parser("render", help="filmstrip PNG and GIF of a learned gait (headless OpenGL)")
+    rend.add_argument("--run", required=True, help="run directory")
+    rend.add_argument("--learner", type=int, default=0, help="learner index within the run")
+    rend.add_argument("--seconds", type=_positive_seconds, default=10.0, help="length of the walk")
+    rend.add_argument("--robot", choices=ROBOTS, default="nominal")
+    rend.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
+    rend.add_argument("--out", help="output directory (default: RUN/render)")
+    rend.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    rend.set_defaults(handler=cmd_render)
+
+    evaluation = sub.add_parser("eval", help="evaluate a run's learned policies as the paper did "
+                                "(velocity, return map, slopes, pushes)")
+    evaluation.add_argument("--run", required=True, help="run directory (learn or sweep)")
+    evaluation.add_argument("--learner", type=int, nargs="+", help="learner indices (default: all)")
+    evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
+    evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
+    evaluation.add_argument("--seed", type=_nonnegative_int, default=None, help="evaluation seed (default 0)")
+    evaluation.add_argument("--fixed-point-steps", type=_nonnegative_int, default=None,
+                            help="unperturbed gait cycles for velocity and fixed point (default 100)")
+    evaluation.add_argument("--perturbations", type=_nonnegative_int, default=None,
+                            help="return-map perturbations (default 50)")
+    evaluation.add_argument("--slope-seconds", type=_positive_seconds, default=None,
+                            help="walk on each slope this long (default 20)")
+    evaluation.add_argument("--max-slope-deg", type=_nonnegative_int, default=None,
+                            help="steepest inclination tried each way (default 15)")
+    evaluation.add_argument("--push-rounds", type=_nonnegative_int, default=None,
+                            help="bisection rounds per push direction (default 7)")
+    evaluation.add_argument("--skip", nargs="+", choices=("return_map", "slopes", "pushes"),
+                            help="evaluations to leave out")
+    evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory)")
+    evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
+    evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    evaluation.set_defaults(handler=cmd_eval)
+
+    from mjxcpg import bench
+
+    bench_parser = sub.add_parser("bench", help="robot-steps/s of every engine, batch size, model and "
+                                  "workload, side by side (bench/README.md)")
+    bench_parser.add_argument("--engines", nargs="+", choices=ENGINES, default=list(ENGINES))
+    bench_parser.add_argument("--models", nargs="+", choices=bench.MODELS, default=list(bench.MODELS),
+                              help="qrio: our robot; humanoid: MJX's benchmark model (physics only)")
+    bench_parser.add_argument("--batches", nargs="+", type=_positive_int, default=list(bench.BATCHES),
+                              help="robots stepped together")
+    bench_parser.add_argument("--workloads", nargs="+", choices=bench.WORKLOADS, default=list(bench.WORKLOADS),
+                              help="physics: physics alone; full: physics + controller + learner")
+    bench_parser.add_argument("--seconds", type=_positive_seconds, default=bench.Options.seconds,
+                              help="timed seconds per measurement, after a warm-up call")
+    bench_parser.add_argument("--budget-seconds", type=_positive_seconds, default=bench.Options.budget_seconds,
+                              help="stepping time a measurement may take (compilation apart); "
+                                   "cases projected past it are skipped")
+    bench_parser.add_argument("--control-steps", type=_positive_int, default=bench.Options.control_steps,
+                              help="control periods per timed call")
+    bench_parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    bench_parser.add_argument("--json", action="store_true",
+                              help="print the report as one JSON object, the last line of stdout")
+    bench_parser.set_defaults(handler=cmd_bench)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    _choose_headless_gl(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

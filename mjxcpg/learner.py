@@ -12,6 +12,10 @@ A control step of one learner, in order:
    and its traces take the new gradients (eqs 18, 21);
 4. the CPG and the servo targets.
 
+The reward's height and velocity and the fall test read the simulator's ground truth, or,
+when ``Task.estimator`` is set, what the robot's own sensors give (``mjxcpg.estimator``: joint
+angles, integrated gyro, sole forces, IMU tilt), as in the paper's online learning on hardware.
+
 A trial ends at a fall (the robot is down, or its physics diverged) or after 20 s.  At a
 fall the TD error is delta = r_fall - V(x(t - dt)), Doya's (2000) terminal condition: the
 value just before the fall is pulled toward the fall's reward (-1), with no future after it.
@@ -28,7 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxcpg import actor_critic as ac
-from mjxcpg import cpg, ngnet, policy
+from mjxcpg import cpg, estimator, ngnet, policy
 from mjxcpg.pytree import tree_where
 from mjxcpg.controller import ControllerParams, control_step, hand_feedback, joint_targets
 from mjxcpg.robot import Layout, Observation, Sensors, observe
@@ -70,6 +74,7 @@ class LearnerState(NamedTuple):
     previous_basis: jax.Array     # b(x(t - dt)); V(t - dt) is re-evaluated with current weights
     has_previous: jax.Array
     book: Bookkeeping
+    estimate: estimator.EstimatorState | None = None  # only with Task.estimator (no leaves otherwise)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +86,9 @@ class Task:
     learner: ac.LearnerParams
     trial: TrialParams
     basis: ngnet.NGnetBasis
+    # Where the reward's height and velocity and the fall test come from: None, the simulator's
+    # ground truth; otherwise estimated from the robot's sensors with these constants.
+    estimator: estimator.EstimatorParams | None = None
 
     @property
     def dt(self) -> float:
@@ -120,7 +128,23 @@ def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
             trial_return=jnp.float32(0), filtered_vx=jnp.float32(0), streak=jnp.int32(0),
             trials_to_success=jnp.int32(-1), returns=jnp.zeros(n, jnp.float32),
             falls=jnp.zeros(n, bool)),
+        estimate=_initial_estimate(task),
     )
+
+
+def _initial_estimate(task: Task) -> estimator.EstimatorState | None:
+    if task.estimator is None:
+        return None
+    return estimator.init_state(task.estimator, task.layout.pelvis_height(task.controller.z0))
+
+
+def measured_inputs(task: Task, state: LearnerState, sensors: Sensors, obs: Observation):
+    """(height, forward velocity, fell, estimator state) for the reward and the fall test:
+    the ground truth, or the estimator's reading of the sensors when ``task.estimator`` is set."""
+    if task.estimator is None:
+        return obs.height, obs.forward_velocity, has_fallen(obs), state.estimate
+    estimate_state, measured = estimator.estimate(task.estimator, state.estimate, sensors, obs, task.dt)
+    return measured.height, measured.forward_velocity, measured.fallen, estimate_state
 
 
 def is_done(task: Task, state: LearnerState) -> jax.Array:
@@ -133,10 +157,10 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
     """One control period of one learner: returns (state, servo targets, trial ended)."""
     p, book = task.learner, state.book
     obs = observe(task.layout, sensors)
-    fell = has_fallen(obs)
+    height, forward_velocity, fell, estimate_state = measured_inputs(task, state, sensors, obs)
     alpha = task.dt / task.trial.velocity_filter_s
-    filtered_vx = book.filtered_vx + alpha * (jnp.nan_to_num(obs.forward_velocity) - book.filtered_vx)
-    r = reward(task.trial, state.k_s, obs.height, filtered_vx)
+    filtered_vx = book.filtered_vx + alpha * (jnp.nan_to_num(forward_velocity) - book.filtered_vx)
+    r = reward(task.trial, state.k_s, height, filtered_vx)
 
     frozen = is_done(task, state)
     acting = book.step >= book.handover
@@ -182,6 +206,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
         weights=weights,
         traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
         previous_basis=b, has_previous=acting & ~ended, book=book,
+        estimate=tree_where(ended, _initial_estimate(task), estimate_state),
     )
     return state, jnp.where(ended, home_ctrl, ctrl), ended
 

@@ -30,6 +30,10 @@ def load_model(slope_deg: float = 0.0, path: Path | str | None = None,
     model.geom_quat[floor] = [math.cos(half), 0.0, math.sin(half), 0.0]
     if timestep is not None:
         model.opt.timestep = timestep
+    if slope_deg != 0.0:
+        # MuJoCo C computes the frames of the world body's (static) geoms with the model's
+        # constants: without this the C engines would keep a level floor.
+        mujoco.mj_setConst(model, mujoco.MjData(model))
     return model
 
 

@@ -34,13 +34,23 @@ def _fingerprint(spec: train.RunSpec) -> np.ndarray:
 
 
 def _leaves(state: Any, spec: train.RunSpec) -> dict:
-    leaves = {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state))}
+    """The state's leaves by index, and the config's fingerprint.  Empty leaves (MJX's data
+    holds some, e.g. ``act`` of a model without actuator dynamics) are left out: orbax cannot
+    save them, and ``restore_state`` takes them from its template."""
+    leaves = {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state)) if np.size(x) > 0}
     return leaves | {"config_sha256": _fingerprint(spec)}
 
 
 def _manager(out: Path) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(out.resolve() / "checkpoints",
                                  options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
+
+
+def write_checkpoint(out: Path, state: Any, spec: train.RunSpec) -> None:
+    """Save ``state`` as the next checkpoint of the run directory ``out`` and wait for it."""
+    manager = _manager(out)
+    manager.save((manager.latest_step() or 0) + 1, args=ocp.args.StandardSave(_leaves(state, spec)))
+    manager.wait_until_finished()
 
 
 def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, force: bool) -> tuple:
@@ -85,8 +95,9 @@ def restore_state(manager: ocp.CheckpointManager, template: Any, spec: train.Run
     if leaves.keys() != expected.keys() or any(
             leaves[k].shape != v.shape or leaves[k].dtype != v.dtype for k, v in expected.items()):
         raise RunError("the checkpoint does not match this version's state; rerun without --resume")
-    treedef = jax.tree.structure(template)
-    return jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves[k]) for k in sorted(leaves)])
+    template_leaves, treedef = jax.tree.flatten(template)
+    return jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves.get(f"{i:04d}", x))
+                                        for i, x in enumerate(template_leaves)])
 
 
 def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
@@ -121,8 +132,12 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     return sim, task, state, time.perf_counter() - start
 
 
-def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0):
-    """The spec, simulation, task and final state of a finished or interrupted run."""
+def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal"):
+    """The spec, simulation, task and final state of a finished or interrupted run.
+
+    On ``robot="hardware"`` (see ``mjxcpg.hardware``) the learners are the checkpoint's and the
+    physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
+    """
     config_path = out / "config.json"
     if not out.is_dir():
         raise RunError(f"no run directory at {out}")
@@ -137,10 +152,12 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0):
     if manager.latest_step() is None:
         raise RunError(f"{out} has no checkpoint")
     sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
-                          physics_dt=spec.physics_dt)
+                          physics_dt=spec.physics_dt, robot=robot)
     task = train.make_task(sim, spec)
     # The checkpoint holds the physics in the recorded engine's layout.
-    recorded = sim if sim.engine.name == record["engine"] else make_simulation(
+    recorded = sim if sim.engine.name == record["engine"] and robot == "nominal" else make_simulation(
         record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
     state = restore_state(manager, train.init_run(recorded, task, spec), spec)
+    if robot != "nominal":
+        state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
     return spec, sim, task, state

@@ -11,6 +11,8 @@ from mjxcpg import engines
 from mjxcpg.controller import ControllerParams
 from mjxcpg.robot import Layout, load_model, standing_qpos
 
+ROBOTS = ("nominal", "hardware")  # the simulated robot; see mjxcpg.hardware
+
 
 @dataclasses.dataclass
 class Simulation:
@@ -27,8 +29,14 @@ class Simulation:
 
 def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
                     params: ControllerParams | None = None,
-                    physics_dt: float | None = None) -> Simulation:
-    """Load the model, check the control period against the physics step, build the engine."""
+                    physics_dt: float | None = None, robot: str = "nominal") -> Simulation:
+    """Load the model, check the control period against the physics step, build the engine.
+
+    ``robot="hardware"`` simulates the perturbed robot of ``mjxcpg.hardware`` (its model,
+    latency and sensor noise); the layout, hence the controller, stays the nominal one's.
+    """
+    if robot not in ROBOTS:
+        raise ValueError(f"unknown robot {robot!r}; choose one of {', '.join(ROBOTS)}")
     params = params or ControllerParams()
     model = load_model(slope_deg, timestep=physics_dt)
     substeps = params.control_dt / model.opt.timestep
@@ -36,8 +44,13 @@ def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
         raise ValueError(f"control period {params.control_dt} s is not a whole number of "
                          f"physics steps of {model.opt.timestep} s")
     layout = Layout.of(model)
-    return Simulation(
-        model=model, layout=layout, params=params,
-        engine=engines.make_engine(engine or engines.default_engine(), model, round(substeps)),
-        qpos0=standing_qpos(model, layout, params.x0, params.z0),
-    )
+    qpos0 = standing_qpos(model, layout, params.x0, params.z0)
+    name = engine or engines.default_engine()
+    if robot == "hardware":
+        from mjxcpg import hardware
+
+        model = hardware.perturbed_model(model)
+        physics_engine = hardware.HardwareEngine(engines.make_engine(name, model, round(substeps)))
+    else:
+        physics_engine = engines.make_engine(name, model, round(substeps))
+    return Simulation(model=model, layout=layout, params=params, engine=physics_engine, qpos0=qpos0)

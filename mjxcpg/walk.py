@@ -35,13 +35,15 @@ class Trace(NamedTuple):
     roll: jax.Array
     a5: jax.Array
     fallen: jax.Array
+    qpos: jax.Array | None = None   # the full configuration, only from make_walk(record_qpos=True)
 
 
 def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: int,
-              feedback: FeedbackFn) -> Callable:
+              feedback: FeedbackFn, record_qpos: bool = False) -> Callable:
     """A jitted ``walk(physics, cpg_state, feedback_params) -> Trace`` over ``steps`` periods.
 
     ``feedback(obs, feedback_params)`` returns a_5 for one robot; it is ``vmap``-ed.
+    ``record_qpos`` also keeps each period's full configuration (e.g. to render the gait).
     """
     def one_robot_control(cpg_state, sensors, fb_params):
         obs = observe(layout, sensors)
@@ -51,12 +53,12 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
 
     def body(carry, _):
         physics, cpg_state, fallen, fb_params = carry
-        cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control)(
-            cpg_state, engine.sensors(physics), fb_params)
+        sensors = engine.sensors(physics)
+        cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control)(cpg_state, sensors, fb_params)
         fallen = fallen | jax.vmap(has_fallen)(obs)
         physics = engine.step(physics, ctrl)
         trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
-                      obs.roll, a5, fallen)
+                      obs.roll, a5, fallen, sensors.qpos if record_qpos else None)
         return (physics, cpg_state, fallen, fb_params), trace
 
     @jax.jit

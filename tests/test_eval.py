@@ -1,0 +1,168 @@
+"""``mjxcpg eval``: the evaluation protocols, the pelvis push of the engines, the report and
+its one-line errors.  Small budgets throughout; the paper's budgets run in ``make test-slow``."""
+
+import json
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from learned_run import make_learned_run
+
+from mjxcpg import evaluate, runs
+from mjxcpg.cli import main
+from mjxcpg.sim import make_simulation
+
+SMALL = ["--fixed-point-steps", "4", "--perturbations", "4", "--slope-seconds", "3",
+         "--max-slope-deg", "1", "--push-rounds", "1"]
+
+
+@pytest.fixture(scope="module")
+def learned_run(tmp_path_factory):
+    """One learner whose policy (tests/data) walks, in a run directory."""
+    return make_learned_run(tmp_path_factory.mktemp("eval") / "run")
+
+
+@pytest.fixture(scope="module")
+def evaluated(learned_run, tmp_path_factory):
+    """``mjxcpg eval`` of that run with small budgets, written to a separate directory."""
+    out = tmp_path_factory.mktemp("eval_out")
+    assert main(["eval", "--run", str(learned_run), "--engine", "native", "--out", str(out),
+                 "--quiet", "--json"] + SMALL) == 0
+    return out
+
+
+def test_eval_writes_json_plots_and_report(evaluated):
+    result = json.loads((evaluated / "eval" / "evaluation.json").read_text())
+    learner = result["learners"][0]
+    rm = learner["return_map"]
+    assert learner["succeeded"] and not rm["fell"]
+    assert rm["mean_vx"] > 0.02 and 0.5 < rm["gait_cycle_s"] < 1.5
+    assert rm["fixed_point_steps"] == 4 and rm["perturbations"] == 4
+    assert rm["fixed_point"] > 0, "the left foot lands ahead of the right while walking forward"
+    assert abs(rm["eigenvalue"]) < 1, "a walking learned policy is locally stable"
+    assert learner["slopes"]["uphill_deg"] is not None and learner["slopes"]["downhill_deg"] <= 0
+    assert set(learner["pushes"]) == set(evaluate.PUSH_DIRECTIONS)
+    report = (evaluated / "report.md").read_text()
+    for figure in ("-0.0101", "+3", "-4", "0.077", "## Table 1", "## Pushes"):
+        assert figure in report
+    for line in report.splitlines():
+        if line.startswith("!["):
+            assert (evaluated / line[line.index("(") + 1:-1]).is_file(), line
+
+
+def test_return_map_is_deterministic_and_robots_do_not_interact(learned_run):
+    """Two copies of the same learner under the same key in one batch: identical figures,
+    and identical again on a second evaluation."""
+    _, sim, task, state = runs.load_run(learned_run, "native")
+    params = evaluate.EvalParams(fixed_point_steps=3, perturbations=3)
+    weights = jax.tree.map(lambda w: jnp.concatenate([w, w]), state.learners.weights)
+    first = evaluate.evaluate_return_map(sim, task, weights, [0, 0], params)
+    again = evaluate.evaluate_return_map(sim, task, weights, [0, 0], params)
+    assert first[0] == first[1] == again[0]
+    assert first[0]["perturbations"] == 3 and len(set(first[0]["offsets"])) == 3
+
+
+def test_pelvis_force_native_equals_scalar_and_pushes_the_right_way():
+    forces = jnp.array([[30.0, 0, 0], [0, 30.0, 0], [0, 0, 0]])
+    ends = []
+    for engine in ("mujoco", "native"):
+        sim = make_simulation(engine)
+        ctrl = jnp.tile(jnp.asarray(sim.layout.ctrl_home, jnp.float32), (3, 1))
+        step = jax.jit(lambda s, engine=sim.engine, ctrl=ctrl: engine.step(s, ctrl, pelvis_force=forces))
+        state = sim.engine.init(sim.qpos0, 3)
+        for _ in range(10):
+            state = step(state)
+        plain = sim.engine.step(state, ctrl)  # no force: the pushes must not linger
+        ends.append(jax.device_get((state, plain)))
+    for x, y in zip(jax.tree.leaves(ends[0]), jax.tree.leaves(ends[1])):
+        np.testing.assert_array_equal(x, y)
+    sensors = make_simulation("mujoco").engine.sensors(ends[0][0])
+    qvel = np.asarray(sensors.qvel)
+    assert qvel[0, 0] > qvel[2, 0] + 0.05 and qvel[1, 1] > qvel[2, 1] + 0.05
+
+
+@pytest.mark.slow
+def test_pelvis_force_on_mjx_pushes_the_right_way():
+    sim = make_simulation("mjx")
+    ctrl = jnp.tile(jnp.asarray(sim.layout.ctrl_home, jnp.float32), (2, 1))
+    step = jax.jit(lambda s, f: sim.engine.step(s, ctrl, pelvis_force=f))
+    state = sim.engine.init(sim.qpos0, 2)
+    for _ in range(10):
+        state = step(state, jnp.array([[30.0, 0, 0], [0, 0, 0]]))
+    assert float(state.qvel[0, 0]) > float(state.qvel[1, 0]) + 0.05
+    assert float(jnp.abs(state.xfrc_applied).max()) == 0.0
+
+
+def test_return_map_protocol_phases():
+    """Baseline touchdowns, then perturbation onset, x_n at the next touchdown, x_{n+1} at
+    the one after, then done; the offset is applied exactly while perturbing."""
+    sim = make_simulation("mujoco")
+    params = evaluate.EvalParams(fixed_point_steps=2, perturbations=1, settle_seconds=0.0,
+                                 recovery_seconds=0.008, onset_jitter_seconds=0.008)
+    protocol = evaluate.make_protocol("return_map", params, sim.layout, sim.control_dt)
+    probe = evaluate.init_probe(protocol, jax.random.PRNGKey(0), jnp.zeros(3))
+    advance = jax.jit(lambda p, t, td, i: evaluate.advance_probe(protocol, p, t, td, i))
+    drive = jax.jit(lambda p, t: evaluate.probe_drive(protocol, p, t)[0])
+    touchdowns = {5: 0, 10: 1, 15: 2, 20: 3, 25: 4}   # control period -> touchdown index
+    offsets, phases = [], []
+    for t in range(30):
+        probe = advance(probe, jnp.int32(t), jnp.bool_(t in touchdowns), jnp.int32(touchdowns.get(t, -1)))
+        offsets.append(float(drive(probe, jnp.int32(t))))
+        phases.append(int(probe.phase))
+    assert phases[15] == evaluate.WAITING and phases[16] == evaluate.PERTURBING
+    assert phases[20] == evaluate.AFTER and phases[25] == evaluate.DONE
+    assert int(probe.perturbed_touchdown[0]) == 3
+    applied = [t for t, o in enumerate(offsets) if o != 0]
+    assert applied == list(range(16, 20)) and offsets[16] == float(probe.offsets[0])
+
+
+def test_tilted_floor_reaches_the_c_engines():
+    """The floor's normal leans back (toward -x) on an uphill slope, in MuJoCo C's own frames."""
+    import math
+
+    import mujoco
+
+    from mjxcpg.robot import load_model
+
+    model = load_model(5.0)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    normal = data.geom_xmat[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")].reshape(3, 3)[:, 2]
+    np.testing.assert_allclose(normal, [-math.sin(math.radians(5.0)), 0.0, math.cos(math.radians(5.0))], atol=1e-6)
+
+
+def test_least_squares_slope_recovers_a_line():
+    x = np.linspace(0.01, 0.05, 20)
+    fit = evaluate.least_squares_slope(x, -0.3 * x + 0.04)
+    assert fit["slope"] == pytest.approx(-0.3) and fit["intercept"] == pytest.approx(0.04)
+    assert fit["slope_stderr"] == pytest.approx(0.0, abs=1e-9)
+    assert evaluate.least_squares_slope(x[:2], x[:2])["slope"] is None
+
+
+@pytest.mark.parametrize("case", ["missing", "no-checkpoint", "learner-out-of-range"])
+def test_eval_errors_are_one_line(learned_run, tmp_path, case, capsys):
+    run = tmp_path / "run"
+    argv = ["eval", "--run", str(run), "--quiet"]
+    if case == "no-checkpoint":
+        shutil.copytree(learned_run, run)
+        shutil.rmtree(run / "checkpoints")
+    elif case == "learner-out-of-range":
+        shutil.copytree(learned_run, run)
+        argv += ["--learner", "0", "3"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mjxcpg: error:") and "\n" not in err
+    assert {"missing": "no run directory", "no-checkpoint": "no checkpoint",
+            "learner-out-of-range": "out of range"}[case] in err
+    assert not (run / "eval").exists()
+
+
+@pytest.mark.slow
+def test_paper_budgets_on_the_learned_policy(learned_run, tmp_path):
+    """The paper's counts (100 unperturbed steps, 50 perturbations, 20 s per slope)."""
+    assert main(["eval", "--run", str(learned_run), "--engine", "native", "--out", str(tmp_path),
+                 "--quiet"]) == 0
+    rm = json.loads((tmp_path / "eval" / "evaluation.json").read_text())["learners"][0]["return_map"]
+    assert rm["perturbations"] == 50 and rm["fixed_point_steps"] == 100 and abs(rm["eigenvalue"]) < 1
