@@ -34,6 +34,7 @@ from mjxcpg.robot import Sensors
 ENGINES = ("mujoco", "native", "mjx")
 _FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CTRL_AND_XFRC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
+_ROBOTS_PER_THREAD = 4  # the native engine uses its threads from this many robots per thread
 PELVIS = "pelvis"  # the body that ``Engine.step``'s ``pelvis_force`` pushes
 
 
@@ -184,6 +185,7 @@ class NativeEngine(_CEngine):
         self.threads = threads or os.cpu_count() or 1
         self._datas = [mujoco.MjData(model) for _ in range(self.threads)]
         self._pool = rollout.Rollout(nthread=self.threads if self.threads > 1 else 0)
+        self._inline = rollout.Rollout(nthread=0)  # small batches: thread hand-offs cost more than they save
 
     def _simulate(self, physics, ctrl, pelvis_force=None):
         batch = len(physics)
@@ -194,8 +196,10 @@ class NativeEngine(_CEngine):
             xfrc[:, self.pelvis, :3] = pelvis_force
             ctrl = np.concatenate([ctrl, xfrc.reshape(batch, -1)], axis=1)
         control = np.repeat(ctrl[:, None, :], self.substeps, axis=1)
-        states, sensordata = self._pool.rollout(
-            self.model, self._datas, physics, control, control_spec=spec, nstep=self.substeps,
+        threaded = batch >= _ROBOTS_PER_THREAD * self.threads
+        runner, datas = (self._pool, self._datas) if threaded else (self._inline, self._datas[:1])
+        states, sensordata = runner.rollout(
+            self.model, datas, physics, control, control_spec=spec, nstep=self.substeps,
             initial_warmstart=np.zeros((batch, self.model.nv)))
         return states[:, -1], sensordata[:, -1]
 
