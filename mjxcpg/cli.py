@@ -189,10 +189,17 @@ def cmd_eval(args: argparse.Namespace) -> dict:
         "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
         if getattr(args, name) is not None}
     params = dc.replace(evaluate.EvalParams(), **overrides)
-    parts = [p for p in ("return_map", "slopes", "pushes") if p not in (args.skip or [])]
+    parts = [p for p in ("return_map", "slopes", "pushes", "transfer") if p not in (args.skip or [])]
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
     result = evaluate.evaluate_run(spec, sim, task, state, learners, params, robot=args.robot,
                                    parts=parts, progress=progress)
+    if args.robot == "hardware" and "transfer" in parts:
+        from mjxcpg import hardware
+
+        if progress:
+            progress(f"transfer: {args.transfer_repeats} walks per policy on the hardware robot")
+        result["transfer"] = hardware.transfer(run_dir, engine=args.engine, learners=learners,
+                                               repeats=args.transfer_repeats)
     out = Path(args.out) if args.out else run_dir
     table1_text = report.table1(train.learner_results(spec, state.learners))
     summary = report.write_eval_report(run_dir, result, out, table1_text)
@@ -304,8 +311,10 @@ def build_parser() -> argparse.ArgumentParser:
                             help="steepest inclination tried each way (default 15)")
     evaluation.add_argument("--push-rounds", type=_nonnegative_int, default=None,
                             help="bisection rounds per push direction (default 7)")
-    evaluation.add_argument("--skip", nargs="+", choices=("return_map", "slopes", "pushes"),
-                            help="evaluations to leave out")
+    evaluation.add_argument("--skip", nargs="+", choices=("return_map", "slopes", "pushes", "transfer"),
+                            help="evaluations to leave out (transfer: --robot hardware only)")
+    evaluation.add_argument("--transfer-repeats", type=_positive_int, default=20,
+                            help="with --robot hardware: walks per policy, each with other sensor noise")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory)")
     evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
     evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")

@@ -76,6 +76,7 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
 PAPER_EIGENVALUE = -0.0101          # Fig 8, 50 perturbed steps
 PAPER_SLOPES_DEG = (3.0, -4.0)      # steady walking from +3 to -4 degrees
 PAPER_VELOCITY = 0.077              # Fig 6 gait, m/s
+PAPER_HARDWARE = (14, 20)           # learned policies that walked on the real QRIO
 
 
 def _finite(value: float | None) -> bool:
@@ -239,5 +240,21 @@ def write_eval_report(run_dir: Path, result: dict, out_dir: Path | None = None,
         medians = ", ".join(f"{n} {_fmt(summary[f'push_{n}_median_Ns'], '.2f')}" for n in names)
         lines += ["", f"Medians over the successful policies (N s): {medians}.", "",
                   "![pushes](eval/pushes.png)", ""]
+    if "transfer" in result:
+        t = result["transfer"]
+        summary["walk_hardware"] = f"{t['walk_hardware']}/{t['succeeded_in_simulation']}"
+        lines += ["## Transfer to the hardware robot", "",
+                  f"Each successful policy walks {t['seconds']:g} s on the hardware robot "
+                  f"(`docs/hardware.md`) {t['repeats']} times, each with other sensor noise.", "",
+                  f"Walked in every try: **{t['walk_hardware']} of {t['succeeded_in_simulation']}**; "
+                  f"in at least one: {t['walk_hardware_any']}; on the nominal robot: {t['walk_nominal']}. "
+                  f"The paper: {PAPER_HARDWARE[0]} of {PAPER_HARDWARE[1]} on the real QRIO.", "",
+                  "| learner | k_s | learned | walks (of tries) | mean vx hardware / nominal (m/s) |",
+                  "|---|---|---|---|---|"]
+        for r in t["learners"]:
+            lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
+                         f"{r['walks_hardware']}/{t['repeats']} | {_fmt(r['mean_vx_hardware'])} / "
+                         f"{_fmt(r['mean_vx_nominal'])} |")
+        lines.append("")
     (out_dir / "report.md").write_text("\n".join(lines))
     return summary
