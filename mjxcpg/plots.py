@@ -14,6 +14,12 @@ import numpy as np  # noqa: E402
 from mjxcpg import ngnet, policy  # noqa: E402
 
 
+def _save(fig, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def learning_curves(results: list[dict], path: Path, title: str = "") -> None:
     """Accumulated reward per trial, one line per learner, with a 20-trial running mean."""
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -30,9 +36,7 @@ def learning_curves(results: list[dict], path: Path, title: str = "") -> None:
     ax.set_ylabel("accumulated reward")
     ax.set_title(title or "Learning curve (cf. Fig 4)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def policy_map(mean_weights: np.ndarray, basis: ngnet.NGnetBasis, a_max: float, path: Path,
@@ -49,9 +53,7 @@ def policy_map(mean_weights: np.ndarray, basis: ngnet.NGnetBasis, a_max: float, 
     ax.set_xlabel("d theta_roll/dt (rad/s)")
     ax.set_ylabel("d theta_pitch/dt (rad/s)")
     ax.set_title(title or "Learned policy (cf. Fig 5)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def input_dominance(mean_weights: np.ndarray, basis: ngnet.NGnetBasis) -> dict:
@@ -100,9 +102,7 @@ def velocity_vs_ks(rows: list[dict], path: Path, reference: float | None = None)
     ax.set_ylabel("mean walking velocity (m/s)")
     ax.set_title("Velocity vs velocity reward (cf. Fig 7)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def return_map(result: dict, path: Path, title: str = "") -> None:
@@ -129,9 +129,7 @@ def return_map(result: dict, path: Path, title: str = "") -> None:
     ax.set_ylabel("step length x_{n+1} (mm)")
     ax.set_title(title or "Return map of step length (cf. Fig 8)", fontsize=9)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def eigenvalues(rows: list[dict], path: Path, reference: float | None = None) -> None:
@@ -153,9 +151,7 @@ def eigenvalues(rows: list[dict], path: Path, reference: float | None = None) ->
     ax.set_ylabel("return-map eigenvalue")
     ax.set_title("Return-map eigenvalue of step length (cf. Fig 8)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def slope_ranges(rows: list[dict], path: Path, reference: tuple[float, float] | None = None) -> None:
@@ -177,9 +173,7 @@ def slope_ranges(rows: list[dict], path: Path, reference: tuple[float, float] | 
     ax.set_xlabel("floor inclination (deg, uphill > 0)")
     ax.set_title("Slopes walked for 20 s without a fall (x: falls on level ground)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def push_impulses(rows: list[dict], path: Path) -> None:
@@ -199,6 +193,4 @@ def push_impulses(rows: list[dict], path: Path) -> None:
     ax.set_ylabel("largest survived impulse (N s)")
     ax.set_title("Pushes on the pelvis at a left touchdown")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)

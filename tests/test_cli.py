@@ -12,6 +12,12 @@ from mjxcpg.cli import main
     ["walk", "--engine", "bullet"],
     ["walk", "--slope", "90"],
     ["walk", "--seconds", "nan"],
+    ["bench", "--engines", "bullet"],
+    ["bench", "--batches", "0"],
+    ["bench", "--batches", "two"],
+    ["bench", "--models", "ant"],
+    ["bench", "--workloads", "render"],
+    ["bench", "--budget-seconds", "-5"],
 ])
 def test_bad_input_is_one_line_and_nonzero(argv, capsys):
     with pytest.raises(SystemExit) as exit_info:
