@@ -23,6 +23,9 @@ from mjxcpg import config, train
 from mjxcpg.sim import Simulation, make_simulation
 
 
+_READ_ATTEMPTS = 4
+
+
 class RunError(ValueError):
     """A run directory that cannot be used as asked."""
 
@@ -85,11 +88,17 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
 def restore_state(manager: ocp.CheckpointManager, template: Any, spec: train.RunSpec) -> Any:
     """The latest checkpoint, checked against the config that asks for it."""
     expected = _leaves(template, spec)
-    try:
-        # Restored as saved, not onto ``expected``: a foreign tree is then ours to report.
-        leaves = dict(manager.restore(manager.latest_step(), args=ocp.args.StandardRestore()))
-    except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
-        raise RunError(f"cannot read the checkpoint: {str(error).splitlines()[0][:200]}") from None
+    # A running sweep writes a step and deletes an old one while we read: look again, a few times.
+    for attempt in range(_READ_ATTEMPTS):
+        try:
+            # Restored as saved, not onto ``expected``: a foreign tree is then ours to report.
+            leaves = dict(manager.restore(manager.latest_step(), args=ocp.args.StandardRestore()))
+            break
+        except Exception as error:  # orbax raises many types for a damaged or foreign checkpoint
+            if attempt == _READ_ATTEMPTS - 1:
+                raise RunError(f"cannot read the checkpoint: {str(error).splitlines()[0][:200]}") from None
+            time.sleep(0.5)
+            manager.reload()
     if not np.array_equal(leaves.pop("config_sha256", None), expected.pop("config_sha256")):
         raise RunError("the checkpoint was written by another config")
     if leaves.keys() != expected.keys() or any(
