@@ -3,8 +3,9 @@ model and workload, side by side in one run.
 
 A robot-step is one physics step of one robot.  The workloads:
 
-* ``physics``: physics alone, under constant servo targets (the standing pose for our robot,
-  zero for the humanoid).  The C engines run their host side (``_simulate``: MuJoCo C on one
+* ``physics``: physics alone.  Our robot replays, open loop, the servo targets of its
+  hand-designed gait (recorded on MuJoCo C), so it walks as in ``full``; the humanoid gets
+  zero controls.  The C engines run their host side (``_simulate``: MuJoCo C on one
   thread, or ``mujoco.rollout`` over the batch on all cores) in a plain Python loop, one call
   per control period as in a run, with no JAX in the loop; MJX runs a jitted ``lax.scan`` of
   ``engine.step``.
@@ -41,8 +42,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import engines, train
-from mjxcpg.controller import joint_targets
+from mjxcpg import engines, train, walk
+from mjxcpg.controller import control_step, roll_rate_feedback
+from mjxcpg.robot import observe
 from mjxcpg.sim import Simulation, make_simulation
 
 MODELS = ("qrio", "humanoid")
@@ -95,21 +97,46 @@ def humanoid_path() -> str:
 
 
 class _Robots(NamedTuple):
-    """An engine for one model, with the pose and servo targets a physics benchmark uses."""
+    """An engine for one model, with the pose and the servo targets a physics benchmark replays."""
 
     engine: engines.Engine
     qpos: np.ndarray
-    ctrl: np.ndarray
+    ctrl: np.ndarray           # (control periods, nu), replayed open loop from ``qpos``
+
+
+WALK_REPLAY_SECONDS = 20.0
+
+
+def walking_controls(sim: Simulation, seconds: float = WALK_REPLAY_SECONDS) -> np.ndarray:
+    """The servo targets of the hand-designed gait from the standing pose, one row per control
+    period, recorded on MuJoCo C.  Replayed open loop from the same pose, the C engines walk
+    exactly this gait again, so ``physics`` and ``full`` step robots in like contact states."""
+    recorder = make_simulation("mujoco", params=sim.params, physics_dt=sim.model.opt.timestep)
+    engine, layout, params = recorder.engine, recorder.layout, recorder.params
+
+    def one_robot(cpg_state, sensors):
+        obs = observe(layout, sensors)
+        return control_step(params, layout, cpg_state, obs, roll_rate_feedback(obs, params.hand_gain))
+
+    def period(carry, _):
+        physics, cpg_state = carry
+        cpg_state, ctrl = jax.vmap(one_robot)(cpg_state, engine.sensors(physics))
+        return (engine.step(physics, ctrl), cpg_state), ctrl[0]
+
+    steps = round(seconds / params.control_dt)
+    _, ctrl = jax.jit(lambda c: jax.lax.scan(period, c, None, length=steps))(
+        (engine.init(recorder.qpos0, 1), walk.initial_cpg(1)))
+    return np.asarray(ctrl, np.float64)
 
 
 def _robots(sim: Simulation, model: str) -> _Robots:
-    """``model`` on ``sim``'s engine kind; our robot is ``sim``'s own."""
+    """``model`` on ``sim``'s engine kind; our robot is ``sim``'s own, replaying its gait."""
     if model == "qrio":
-        return _Robots(sim.engine, sim.qpos0, np.asarray(joint_targets(sim.params, sim.layout, jnp.zeros(6))))
+        return _Robots(sim.engine, sim.qpos0, walking_controls(sim))
     humanoid = mujoco.MjModel.from_xml_path(humanoid_path())
-    # The same physics steps per engine call as our robot's control period.
+    # The same physics steps per engine call as our robot's control period; zero controls.
     return _Robots(engines.make_engine(sim.engine.name, humanoid, sim.engine.substeps), humanoid.qpos0.copy(),
-                   np.zeros(humanoid.nu))
+                   np.zeros((1, humanoid.nu)))
 
 
 def _compiled(step: Callable, state, *args) -> tuple[Callable[[], None], float]:
@@ -126,34 +153,43 @@ def _compiled(step: Callable, state, *args) -> tuple[Callable[[], None], float]:
 
 
 def _raw_c_physics(robots: _Robots, batch: int, control_steps: int) -> Workload:
-    """The C engine's host side in a Python loop: no JAX, no callback."""
+    """The C engine's host side in a Python loop: no JAX, no callback.  The recorded servo
+    targets are replayed period by period; at their end every robot starts over from the pose."""
     engine, model = robots.engine, robots.engine.model
     data = mujoco.MjData(model)
     data.qpos[:] = robots.qpos
     mujoco.mj_forward(model, data)
     start = np.empty(mujoco.mj_stateSize(model, FULLPHYSICS))
     mujoco.mj_getState(model, data, start, FULLPHYSICS)
-    physics = np.tile(start, (batch, 1))
-    ctrl = np.tile(robots.ctrl, (batch, 1))
+    physics, period = np.tile(start, (batch, 1)), 0
 
     def run() -> None:
-        nonlocal physics
+        nonlocal physics, period
         for _ in range(control_steps):
-            physics, _ = engine._simulate(physics, ctrl)
+            if period == len(robots.ctrl):
+                physics, period = np.tile(start, (batch, 1)), 0
+            physics, _ = engine._simulate(physics, np.tile(robots.ctrl[period], (batch, 1)))
+            period += 1
 
     return Workload(run, batch * control_steps * engine.substeps, None)
 
 
 def _mjx_physics(robots: _Robots, batch: int, control_steps: int) -> Workload:
-    """A jitted ``lax.scan`` of ``engine.step`` under constant servo targets."""
+    """A jitted ``lax.scan`` of ``engine.step`` over the recorded servo targets: every call
+    replays the first ``control_steps`` of them from the pose, so it stays a walk's start."""
     engine = robots.engine
-    ctrl = jnp.tile(jnp.asarray(robots.ctrl, jnp.float32), (batch, 1))
+    rows = np.arange(control_steps) % len(robots.ctrl)
+    ctrl = jnp.tile(jnp.asarray(robots.ctrl[rows], jnp.float32)[:, None, :], (1, batch, 1))
+    pose = engine.init(robots.qpos, batch)
 
     def steps(state, ctrl):
-        return jax.lax.scan(lambda s, _: (engine.step(s, ctrl), None), state, None, length=control_steps)[0]
+        return jax.lax.scan(lambda s, u: (engine.step(s, u), None), state, ctrl)[0]
 
-    run, compile_s = _compiled(steps, engine.init(robots.qpos, batch), ctrl)
-    return Workload(run, batch * control_steps * engine.substeps, compile_s)
+    start = time.perf_counter()
+    compiled = jax.jit(steps).lower(pose, ctrl).compile()
+    compile_s = time.perf_counter() - start
+    return Workload(lambda: jax.block_until_ready(compiled(pose, ctrl)) and None,
+                    batch * control_steps * engine.substeps, compile_s)
 
 
 def _full(sim: Simulation, batch: int, control_steps: int) -> Workload:
