@@ -16,7 +16,6 @@ The CPG keeps a 1 ms integration step whatever the control period.  Run it on a 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import tempfile
 import time
@@ -43,10 +42,7 @@ def controller_for(control_dt: float) -> ControllerParams:
 def gait(physics_dt: float, control_dt: float, seconds: float = 20.0) -> list[dict]:
     """The hand-designed controller at each gain of ``HAND_GAINS``, one batch."""
     sim = make_simulation("native", params=controller_for(control_dt), physics_dt=physics_dt)
-    run = walk.make_walk(sim.engine, sim.layout, sim.params, round(seconds / control_dt),
-                         roll_rate_feedback)
-    batch = len(HAND_GAINS)
-    trace = run(sim.engine.init(sim.qpos0, batch), walk.initial_cpg(batch), jnp.array(HAND_GAINS))
+    trace = walk.walk_from_standing(sim, roll_rate_feedback, jnp.array(HAND_GAINS), seconds)
     return [{"gain": k, **g.as_dict()} for k, g in zip(HAND_GAINS, walk.summarise(trace, control_dt))]
 
 

@@ -52,11 +52,10 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         import jax
 
         from mjxcpg.learner import policy_mean_feedback
-        from mjxcpg.runs import load_run
+        from mjxcpg.runs import check_learners, load_run
 
         spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
-        if not 0 <= args.learner < spec.batch:
-            raise UserError(f"--learner {args.learner} is out of range: the run has {spec.batch} learner(s)")
+        check_learners(spec, [args.learner])
         feedback = policy_mean_feedback(task)
         fb_params = jax.tree.map(lambda w: w[args.learner:args.learner + 1], state.learners.weights)
     else:
@@ -66,9 +65,7 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[args.controller]
         feedback = roll_rate_feedback
         fb_params = jnp.array([gain])
-    steps = round(args.seconds / sim.control_dt)
-    run = walk.make_walk(sim.engine, sim.layout, sim.params, steps, feedback)
-    trace = run(sim.engine.init(sim.qpos0, 1), walk.initial_cpg(1), fb_params)
+    trace = walk.walk_from_standing(sim, feedback, fb_params, args.seconds)
     summary = walk.summarise(trace, sim.control_dt)[0].as_dict()
     summary.update(engine=sim.engine.name, slope_deg=args.slope,
                    controller="learned" if args.checkpoint else args.controller)
@@ -177,14 +174,11 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     import dataclasses as dc
 
     from mjxcpg import evaluate, report, train
-    from mjxcpg.runs import load_run
+    from mjxcpg.runs import check_learners, load_run
 
     run_dir = Path(args.run)
     spec, sim, task, state = load_run(run_dir, args.engine, robot=args.robot)
-    learners = args.learner if args.learner else list(range(spec.batch))
-    for k in learners:
-        if not 0 <= k < spec.batch:
-            raise UserError(f"--learner {k} is out of range: the run has {spec.batch} learner(s)")
+    learners = check_learners(spec, args.learner or None)
     overrides = {name: getattr(args, name) for name in (
         "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
         if getattr(args, name) is not None}

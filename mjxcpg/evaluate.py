@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import cpg, ik
+from mjxcpg import cpg, ik, runs
 from mjxcpg.controller import control_step, joint_targets
 from mjxcpg.learner import Task, policy_mean_feedback
 from mjxcpg.robot import LEG_JOINTS, Layout, Observation, observe
@@ -530,7 +530,7 @@ def evaluate_run(spec, sim: Simulation, task: Task, state, learners: Sequence[in
                  parts: Sequence[str] = ("return_map", "slopes", "pushes"),
                  progress: Callable[[str], None] | None = None) -> dict:
     """All evaluations of the chosen learners of a loaded run (``runs.load_run``)."""
-    chosen = list(range(spec.batch)) if learners is None else [int(k) for k in learners]
+    chosen = runs.check_learners(spec, learners)
     rows = jnp.asarray(chosen)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
     book = jax.device_get(state.learners.book)

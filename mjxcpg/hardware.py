@@ -185,15 +185,10 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
     if repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {repeats}")
     spec, sim, task, state = runs.load_run(Path(run_dir), engine, robot=robot)
-    chosen = list(range(spec.batch)) if learners is None else [int(k) for k in learners]
-    for k in chosen:
-        if not 0 <= k < spec.batch:
-            raise runs.RunError(f"learner {k} is out of range: the run has {spec.batch} learner(s)")
+    chosen = runs.check_learners(spec, learners)
     rows = jnp.repeat(jnp.asarray(chosen), repeats)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
-    run = walk.make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt),
-                         policy_mean_feedback(task))
-    trace = run(sim.engine.init(sim.qpos0, len(rows)), walk.initial_cpg(len(rows)), weights)
+    trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, seconds)
     gaits = walk.summarise(trace, sim.control_dt)
     succeeded = np.asarray(state.learners.book.trials_to_success)[chosen] >= 0
     results = []

@@ -60,8 +60,7 @@ def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot
             raise runs.RunError(f"{out} exists; pass --force to replace it")
         shutil.rmtree(out)
     source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
-    if not 0 <= learner < source_spec.batch:
-        raise runs.RunError(f"learner {learner} is out of range: {source} has {source_spec.batch} learner(s)")
+    runs.check_learners(source_spec, [learner])
     spec = continued_spec(source_spec, learner, trials, trial_seconds)
     task = train.make_task(sim, spec)
     if reward == "estimate":

@@ -72,12 +72,9 @@ def record_gait(run_dir: Path, learner: int, seconds: float, engine: str | None 
     from mjxcpg.learner import policy_mean_feedback
 
     spec, sim, task, state = runs.load_run(run_dir, engine, robot=robot)
-    if not 0 <= learner < spec.batch:
-        raise runs.RunError(f"learner {learner} is out of range: the run has {spec.batch} learner(s)")
+    runs.check_learners(spec, [learner])
     weights = jax.tree.map(lambda w: w[learner:learner + 1], state.learners.weights)
-    run = walk.make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt),
-                         policy_mean_feedback(task), record_qpos=True)
-    trace = run(sim.engine.init(sim.qpos0, 1), walk.initial_cpg(1), weights)
+    trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, seconds, record_qpos=True)
     summary = walk.summarise(trace, sim.control_dt)[0]
     return Gait(model=sim.model, qpos=np.asarray(trace.qpos[0], np.float64), dt=sim.control_dt,
                 fell=summary.fell, seconds=summary.seconds, mean_vx=summary.mean_vx)

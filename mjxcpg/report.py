@@ -19,12 +19,9 @@ PAPER_TABLE1 = {0.0: (4, 1, 2385), 1.0: (3, 3, 528), 2.0: (3, 3, 195), 3.0: (4, 
 
 def final_policy_gaits(sim, task, state: train.RunState, seconds: float = 20.0) -> list[dict]:
     """Every learner's final policy (mean, no noise) walks ``seconds``, all in one batch."""
-    weights = state.learners.weights
-    batch = weights.mean.shape[0]
-    run = walk.make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt),
-                         policy_mean_feedback(task))
     # On one device: this walk, unlike the learning, is not bit-stable under sharding.
-    trace = run(sim.engine.init(sim.qpos0, batch), walk.initial_cpg(batch), jax.device_get(weights))
+    trace = walk.walk_from_standing(sim, policy_mean_feedback(task), jax.device_get(state.learners.weights),
+                                    seconds)
     return [g.as_dict() for g in walk.summarise(trace, sim.control_dt)]
 
 

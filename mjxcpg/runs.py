@@ -141,6 +141,15 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     return sim, task, state, time.perf_counter() - start
 
 
+def check_learners(spec: train.RunSpec, learners) -> list[int]:
+    """``learners`` as indices into ``spec``'s batch (all of them when None), each in range."""
+    chosen = list(range(spec.batch)) if learners is None else [int(k) for k in learners]
+    for k in chosen:
+        if not 0 <= k < spec.batch:
+            raise RunError(f"learner {k} is out of range: the run has {spec.batch} learner(s)")
+    return chosen
+
+
 def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal"):
     """The spec, simulation, task and final state of a finished or interrupted run.
 

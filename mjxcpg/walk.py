@@ -71,6 +71,16 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
     return walk
 
 
+def walk_from_standing(sim, feedback: FeedbackFn, fb_params, seconds: float,
+                       record_qpos: bool = False) -> Trace:
+    """Robots on ``sim`` (a ``Simulation``), one per leading row of ``fb_params``, walk
+    ``seconds`` from the standing pose in one batch."""
+    batch = jax.tree.leaves(fb_params)[0].shape[0]
+    run = make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt), feedback,
+                    record_qpos)
+    return run(sim.engine.init(sim.qpos0, batch), initial_cpg(batch), fb_params)
+
+
 @dataclasses.dataclass
 class GaitSummary:
     fell: bool

@@ -2,7 +2,6 @@
 
 import json
 
-import pytest
 
 from mjxcpg.cli import main
 
