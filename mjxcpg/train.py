@@ -96,8 +96,9 @@ def shard_learners(tree: Any, batch: int) -> Any:
 
 
 def done_mask(task: Task, learners: LearnerState) -> np.ndarray:
-    """Which learners have succeeded or used their budget, on the host."""
-    return np.asarray(is_done(task, jax.device_get(learners)))
+    """Which learners have succeeded or used their budget, on the host (only the
+    bookkeeping, which is all ``is_done`` reads, leaves the devices)."""
+    return np.asarray(is_done(task, learners._replace(book=jax.device_get(learners.book))))
 
 
 def progress_counts(task: Task, learners: LearnerState) -> dict:
@@ -164,8 +165,8 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
             part = chunk(shard_learners(take(state), len(rows)), shard_learners(take(initial), len(rows)))
             state = jax.tree.map(functools.partial(_put_rows, rows), state, part)
         state = jax.block_until_ready(state)
-        counts = progress_counts(task, state.learners)
-        counts["robot_steps_per_s"] = np.sum(~done) * steps * sim.engine.substeps / (time.perf_counter() - start)
+        robot_steps_per_s = np.sum(~done) * steps * sim.engine.substeps / (time.perf_counter() - start)
+        counts = progress_counts(task, state.learners) | {"robot_steps_per_s": robot_steps_per_s}
         done = done_mask(task, state.learners)
         if on_chunk is not None:
             on_chunk(state, counts)
