@@ -49,10 +49,15 @@ def _manager(out: Path) -> ocp.CheckpointManager:
                                  options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
 
 
+def _save_next(manager: ocp.CheckpointManager, state: Any, spec: train.RunSpec) -> None:
+    """Start saving ``state`` as the step after the latest (orbax writes in the background)."""
+    manager.save((manager.latest_step() or 0) + 1, args=ocp.args.StandardSave(_leaves(state, spec)))
+
+
 def write_checkpoint(out: Path, state: Any, spec: train.RunSpec) -> None:
     """Save ``state`` as the next checkpoint of the run directory ``out`` and wait for it."""
     manager = _manager(out)
-    manager.save((manager.latest_step() or 0) + 1, args=ocp.args.StandardSave(_leaves(state, spec)))
+    _save_next(manager, state, spec)
     manager.wait_until_finished()
 
 
@@ -119,13 +124,11 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     sim, task, state, manager = prepare(out, spec, engine, resume, force)
     total = spec.batch * spec.trial.max_trials
     bar = tqdm(total=total, unit="trial", disable=not progress, dynamic_ncols=True)
-    chunk_index = [manager.latest_step() or 0]
     start = time.perf_counter()
     bar.update(train.progress_counts(task, state.learners)["trials"])
 
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
-        chunk_index[0] += 1
-        manager.save(chunk_index[0], args=ocp.args.StandardSave(_leaves(new_state, spec)))
+        _save_next(manager, new_state, spec)
         bar.update(counts["trials"] - bar.n)
         bar.set_postfix(succeeded=f"{counts['succeeded']}/{spec.batch}",
                         done=counts["done"], steps_per_s=f"{counts['robot_steps_per_s']:.0f}")
