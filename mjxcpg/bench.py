@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import engines, train, walk
+from mjxcpg import engines, train, walk, xla
 from mjxcpg.controller import control_step, roll_rate_feedback
 from mjxcpg.robot import observe
 from mjxcpg.sim import Simulation, make_simulation
@@ -124,7 +124,7 @@ def walking_controls(sim: Simulation, seconds: float = WALK_REPLAY_SECONDS) -> n
         return (engine.step(physics, ctrl), cpg_state), ctrl[0]
 
     steps = round(seconds / params.control_dt)
-    _, ctrl = jax.jit(lambda c: jax.lax.scan(period, c, None, length=steps))(
+    _, ctrl = xla.jit(lambda c: jax.lax.scan(period, c, None, length=steps))(
         (engine.init(recorder.qpos0, 1), walk.initial_cpg(1)))
     return np.asarray(ctrl, np.float64)
 
@@ -139,10 +139,11 @@ def _robots(sim: Simulation, model: str) -> _Robots:
                    np.zeros((1, humanoid.nu)))
 
 
-def _compiled(step: Callable, state, *args) -> tuple[Callable[[], None], float]:
-    """Compile ``state = step(state, *args)`` once; return a runner and the compile time."""
+def _compiled(step, state, *args) -> tuple[Callable[[], None], float]:
+    """Compile ``state = step(state, *args)`` (``step`` jitted) once; return a runner and the
+    compile time."""
     start = time.perf_counter()
-    compiled = jax.jit(step).lower(state, *args).compile()
+    compiled = step.lower(state, *args).compile()
     compile_s = time.perf_counter() - start
 
     def run() -> None:
@@ -186,7 +187,7 @@ def _mjx_physics(robots: _Robots, batch: int, control_steps: int) -> Workload:
         return jax.lax.scan(lambda s, u: (engine.step(s, u), None), state, ctrl)[0]
 
     start = time.perf_counter()
-    compiled = jax.jit(steps).lower(pose, ctrl).compile()
+    compiled = xla.jit(steps).lower(pose, ctrl).compile()
     compile_s = time.perf_counter() - start
     return Workload(lambda: jax.block_until_ready(compiled(pose, ctrl)) and None,
                     batch * control_steps * engine.substeps, compile_s)

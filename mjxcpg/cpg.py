@@ -65,7 +65,10 @@ def output(state: CPGState) -> jax.Array:
 def membrane_rate(params: CPGParams, state: CPGState, feedback: jax.Array) -> jax.Array:
     """Eq (1): dz_i/dt = (-z_i - sum_j w_ij q_j - gamma z'_i + c + a_i) / tau."""
     w = jnp.asarray(params.weights, dtype=state.z.dtype)
-    drive = -state.z - w @ output(state) - params.adaptation * state.z_adapt
+    # The 6 x 6 coupling as a product and a sum rather than a matrix product, which XLA:CPU
+    # sends to a library call that costs more than the whole rest of a CPG step.
+    coupling = jnp.sum(w * output(state), axis=-1)
+    drive = -state.z - coupling - params.adaptation * state.z_adapt
     return (drive + params.bias + feedback) / params.tau
 
 

@@ -8,7 +8,8 @@ inside the same ``jit``/``lax.scan`` whatever the engine:
 * ``native``: MuJoCo C stepping the batch on all cores through ``mujoco.rollout``;
 * ``mjx``: MuJoCo MJX, ``vmap``-ed, on whatever device JAX uses.
 
-The two C engines reach the host through ``jax.pure_callback`` and keep the full physics
+The two C engines reach the host through a callback (``buffer_callback`` on one CPU device,
+which writes into XLA's own buffers; ``pure_callback`` elsewhere) and keep the full physics
 state (``mjSTATE_FULLPHYSICS``) in the pytree; each control period starts the solver from a
 zero warm start, so that their results do not depend on thread scheduling or on which
 ``MjData`` served a robot.  They give identical results for the same inputs.  A robot whose
@@ -27,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from jax.experimental.buffer_callback import buffer_callback
 
 from mjxcpg.pytree import tree_where
 from mjxcpg.robot import Sensors
@@ -110,39 +112,56 @@ class _CEngine(Engine):
 
     def step(self, state: CState, ctrl: jax.Array, active: jax.Array | None = None,
              pelvis_force: jax.Array | None = None) -> CState:
-        batch, nstate = state.physics.shape
-        if active is None:
-            active = jnp.ones(batch, bool)
-        # One array each way: every array crossing pure_callback costs about 15 us.
-        columns = [state.physics, state.sensordata, ctrl, active[:, None]]
+        batch = state.physics.shape[0]
+        inputs = [state.physics, state.sensordata, ctrl.astype(jnp.float32),
+                  jnp.ones(batch, bool) if active is None else active]
         if pelvis_force is not None:
-            columns.append(pelvis_force)
-        packed = jnp.concatenate([c.astype(jnp.float32) for c in columns], axis=1)
-        out = jax.pure_callback(
-            self._host_step, jax.ShapeDtypeStruct((batch, nstate + state.sensordata.shape[1]), jnp.float32),
-            packed, vmap_method="sequential")
-        return CState(physics=out[:, :nstate], sensordata=out[:, nstate:])
+            inputs.append(pelvis_force.astype(jnp.float32))
+        outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
+                   jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
+        if jax.default_backend() == "cpu" and jax.device_count() == 1:
+            # The host writes the stepped rows straight into XLA's buffers, which alias the
+            # inputs, so idle robots cost no copy and nothing is packed or allocated.  (Over
+            # several devices, buffer_callback runs once per device: there the batch goes to one
+            # device through pure_callback.)
+            physics, sensordata = buffer_callback(
+                self._host_step_in_place, outputs, vmap_method="sequential",
+                input_output_aliases={0: 0, 1: 1})(*inputs)
+        else:  # the host works on copies
+            physics, sensordata = jax.pure_callback(self._host_step_copied, outputs, *inputs,
+                                                    vmap_method="sequential")
+        return CState(physics=physics, sensordata=sensordata)
 
-    def _host_step(self, packed: np.ndarray) -> np.ndarray:
-        # pure_callback hands over a jax.Array, and indexing one dispatches a JAX op (about
-        # 0.2 ms each): view it as a NumPy array first (no copy on the CPU).
-        packed = np.asarray(packed)
-        nstate, nsensor, nu = self.nstate, self.model.nsensordata, self.model.nu
-        out = np.array(packed[:, :nstate + nsensor])
-        rows = np.flatnonzero(packed[:, nstate + nsensor + nu])
-        if rows.size == 0:
-            return out
-        start = packed[rows, :nstate].astype(np.float64)
-        ctrl = packed[rows, nstate + nsensor:nstate + nsensor + nu].astype(np.float64)
-        force = packed[rows, nstate + nsensor + nu + 1:].astype(np.float64) if packed.shape[1] > nstate + nsensor + nu + 1 else None
-        stepped, stepped_sensors = self._simulate(start, ctrl, force)
+    def _host_step_in_place(self, _context, out, *inputs) -> None:
+        physics, sensordata = (np.asarray(buffer) for buffer in out)  # views, aliasing inputs 0, 1
+        self._host_step(physics, sensordata, *(np.asarray(x) for x in inputs[2:]))
+
+    def _host_step_copied(self, physics, sensordata, *inputs) -> tuple[np.ndarray, np.ndarray]:
+        physics, sensordata = np.array(physics), np.array(sensordata)
+        self._host_step(physics, sensordata, *(np.asarray(x) for x in inputs))
+        return physics, sensordata
+
+    def _host_step(self, physics: np.ndarray, sensordata: np.ndarray, ctrl: np.ndarray,
+                   active: np.ndarray, pelvis_force: np.ndarray | None = None) -> None:
+        """Step the active rows of ``physics`` and ``sensordata`` (float32) in place."""
+        rows = None if active.all() else np.flatnonzero(active)
+        if rows is not None and rows.size == 0:
+            return
+        pick = (lambda x: x) if rows is None else (lambda x: x[rows])
+        start = pick(physics).astype(np.float64)
+        force = None if pelvis_force is None else pick(pelvis_force).astype(np.float64)
+        stepped, stepped_sensors = self._simulate(start, pick(ctrl).astype(np.float64), force)
         # MuJoCo resets a diverged simulation to time 0: report it as NaN instead.
         elapsed = stepped[:, 0] - start[:, 0]
         expected = self.substeps * self.model.opt.timestep
         diverged = (np.abs(elapsed - expected) > 1e-6 + 1e-3 * expected) | ~np.isfinite(stepped).all(axis=1)
-        out[rows, :nstate] = np.where(diverged[:, None], np.nan, stepped)
-        out[rows, nstate:] = np.where(diverged[:, None], np.nan, stepped_sensors)
-        return out
+        if diverged.any():
+            stepped[diverged] = np.nan
+            stepped_sensors[diverged] = np.nan
+        if rows is None:
+            physics[:], sensordata[:] = stepped, stepped_sensors
+        else:
+            physics[rows], sensordata[rows] = stepped, stepped_sensors
 
     @abc.abstractmethod
     def _simulate(self, physics: np.ndarray, ctrl: np.ndarray,
@@ -186,6 +205,7 @@ class NativeEngine(_CEngine):
         self._datas = [mujoco.MjData(model) for _ in range(self.threads)]
         self._pool = rollout.Rollout(nthread=self.threads if self.threads > 1 else 0)
         self._inline = rollout.Rollout(nthread=0)  # small batches: thread hand-offs cost more than they save
+        self._buffers: dict[int, _RolloutBuffers] = {}
 
     def _simulate(self, physics, ctrl, pelvis_force=None):
         batch = len(physics)
@@ -198,10 +218,31 @@ class NativeEngine(_CEngine):
         control = np.repeat(ctrl[:, None, :], self.substeps, axis=1)
         threaded = batch >= _ROBOTS_PER_THREAD * self.threads
         runner, datas = (self._pool, self._datas) if threaded else (self._inline, self._datas[:1])
-        states, sensordata = runner.rollout(
-            self.model, datas, physics, control, control_spec=spec, nstep=self.substeps,
-            initial_warmstart=np.zeros((batch, self.model.nv)))
-        return states[:, -1], sensordata[:, -1]
+        out = self._outputs(batch)
+        # The checks and allocations of ``rollout`` cost as much as a tenth of the stepping at
+        # the paper's batch; the arrays here are float64, C-ordered and of the right shapes.
+        runner.rollout(out.models, datas, np.ascontiguousarray(physics, np.float64), control,
+                       control_spec=int(spec), skip_checks=True, nstep=self.substeps,
+                       initial_warmstart=out.warmstart, state=out.state, sensordata=out.sensordata)
+        return out.state[:, -1].copy(), out.sensordata[:, -1].copy()
+
+    def _outputs(self, batch: int) -> _RolloutBuffers:
+        if batch not in self._buffers:
+            model = self.model
+            self._buffers[batch] = _RolloutBuffers(
+                models=[model] * batch, warmstart=np.zeros((batch, model.nv)),
+                state=np.empty((batch, self.substeps, self.nstate)),
+                sensordata=np.empty((batch, self.substeps, model.nsensordata)))
+        return self._buffers[batch]
+
+
+class _RolloutBuffers(NamedTuple):
+    """What ``mujoco.rollout`` reads and writes for a batch of one size, kept between calls."""
+
+    models: list
+    warmstart: np.ndarray   # zeros: every control period starts the solver cold
+    state: np.ndarray
+    sensordata: np.ndarray
 
 
 class MjxEngine(Engine):

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import cpg, ik, runs
+from mjxcpg import cpg, ik, runs, xla
 from mjxcpg.controller import control_step, joint_targets
 from mjxcpg.learner import Task, policy_mean_feedback
 from mjxcpg.robot import LEG_JOINTS, Layout, Observation, observe
@@ -344,7 +344,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
             skipped=state.skipped, unloaded_steps=keep(unloaded, state.unloaded_steps),
             probe=keep(probe, state.probe), log=keep(log, state.log))
 
-    @jax.jit
+    @xla.jit
     def chunk(state: EvalState, weights) -> EvalState:
         state, _ = jax.lax.scan(lambda s, _: (body(s, weights), None), state, None, length=steps)
         return state

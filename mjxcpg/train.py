@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg import actor_critic as ac
-from mjxcpg import ngnet
+from mjxcpg import ngnet, xla
 from mjxcpg.controller import ControllerParams
 from mjxcpg.learner import LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step
 from mjxcpg.sim import Simulation
@@ -69,7 +69,7 @@ def make_chunk(sim: Simulation, task: Task, steps: int) -> Callable[[RunState], 
         physics = engine.step(physics, ctrl, ~learners_done(learners))
         return (RunState(physics, learners), initial), None
 
-    @jax.jit
+    @xla.jit
     def chunk(run: RunState, initial: Any) -> RunState:
         (run, _), _ = jax.lax.scan(body, (run, initial), None, length=steps)
         return run

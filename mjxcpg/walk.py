@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg import cpg
+from mjxcpg import cpg, xla
 from mjxcpg.controller import ControllerParams, control_step
 from mjxcpg.engines import Engine
 from mjxcpg.robot import Layout, Observation, observe
@@ -61,7 +61,7 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
                       obs.roll, a5, fallen, sensors.qpos if record_qpos else None)
         return (physics, cpg_state, fallen, fb_params), trace
 
-    @jax.jit
+    @xla.jit
     def walk(physics, cpg_state, fb_params):
         batch = cpg_state.z.shape[0]
         carry = (physics, cpg_state, jnp.zeros(batch, bool), fb_params)
