@@ -3,14 +3,16 @@ model and workload, side by side in one run.
 
 A robot-step is one physics step of one robot.  The workloads:
 
-* ``physics``: physics alone.  Our robot replays, open loop, the servo targets of its
-  hand-designed gait (recorded on MuJoCo C), so it walks as in ``full``; the humanoid gets
-  zero controls.  The C engines run their host side (``_simulate``: MuJoCo C on one
-  thread, or ``mujoco.rollout`` over the batch on all cores) in a plain Python loop, one call
-  per control period as in a run, with no JAX in the loop; MJX runs a jitted ``lax.scan`` of
-  ``engine.step``.
 * ``full``: physics, controller and learner, ``train.make_chunk`` on one learner per robot
-  (our robot only).
+  (our robot only), k_s = 10, from the start of learning.
+* ``physics``: physics alone.  For our robot, exactly the physics steps ``full`` takes: the
+  same run is advanced untimed while recording every state and servo target the engine was
+  given, then only the engine replays them, timed (``_replayed_physics``).  So the two
+  workloads step robots in the same states (MJX's solver and the C solver iterate more in
+  some than in others).  The humanoid starts from ``qpos0`` under zero controls.  The C
+  engines run their host side (``_simulate``: MuJoCo C on one thread, or ``mujoco.rollout``
+  over the batch on all cores) in a plain Python loop, one call per control period as in a
+  run, with no JAX in the loop; MJX runs a jitted ``lax.scan`` of ``engine.step``.
 
 ``full`` over ``physics`` at the same batch is what the controller, the learner and, for
 the C engines, the host callback cost.  Compile time is reported apart and never counted
@@ -26,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
+import functools
 import importlib.metadata
 import importlib.resources
 import io
@@ -35,16 +38,14 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import engines, train, walk, xla
-from mjxcpg.controller import control_step, roll_rate_feedback
-from mjxcpg.robot import observe
+from mjxcpg import engines, train, xla
 from mjxcpg.sim import Simulation, make_simulation
 
 MODELS = ("qrio", "humanoid")
@@ -53,7 +54,6 @@ BATCHES = (1, 27, 256, 1024)
 RATIO_BATCH = 27                              # the paper's sweep: 27 learners
 OVERHEAD_TARGETS = {"native": 0.25, "mjx": 0.10}  # issue 5: full costs at most this much over physics
 FULL_K_S = 10.0                               # velocity reward gain of every benchmarked learner
-FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,9 +80,10 @@ class Case(NamedTuple):
 
 
 class Workload(NamedTuple):
-    """A benchmark ready to time: ``run`` advances the robots and waits for the result."""
+    """A benchmark ready to time: ``run`` advances the robots, waits for the result and
+    returns the seconds of the measured part (all of it, but for ``_replayed_physics``)."""
 
-    run: Callable[[], None]
+    run: Callable[[], float]
     robot_steps: int           # physics steps x robots per call to ``run``
     compile_s: float | None    # None: nothing to compile (raw C)
 
@@ -96,119 +97,127 @@ def humanoid_path() -> str:
     return str(path)
 
 
-class _Robots(NamedTuple):
-    """An engine for one model, with the pose and the servo targets a physics benchmark replays."""
-
-    engine: engines.Engine
-    qpos: np.ndarray
-    ctrl: np.ndarray           # (control periods, nu), replayed open loop from ``qpos``
-
-
-WALK_REPLAY_SECONDS = 20.0
-
-
-def walking_controls(sim: Simulation, seconds: float = WALK_REPLAY_SECONDS) -> np.ndarray:
-    """The servo targets of the hand-designed gait from the standing pose, one row per control
-    period, recorded on MuJoCo C.  Replayed open loop from the same pose, the C engines walk
-    exactly this gait again, so ``physics`` and ``full`` step robots in like contact states."""
-    recorder = make_simulation("mujoco", params=sim.params, physics_dt=sim.model.opt.timestep)
-    engine, layout, params = recorder.engine, recorder.layout, recorder.params
-
-    def one_robot(cpg_state, sensors):
-        obs = observe(layout, sensors)
-        return control_step(params, layout, cpg_state, obs, roll_rate_feedback(obs, params.hand_gain))
-
-    def period(carry, _):
-        physics, cpg_state = carry
-        cpg_state, ctrl = jax.vmap(one_robot)(cpg_state, engine.sensors(physics))
-        return (engine.step(physics, ctrl), cpg_state), ctrl[0]
-
-    steps = round(seconds / params.control_dt)
-    _, ctrl = xla.jit(lambda c: jax.lax.scan(period, c, None, length=steps))(
-        (engine.init(recorder.qpos0, 1), walk.initial_cpg(1)))
-    return np.asarray(ctrl, np.float64)
-
-
-def _robots(sim: Simulation, model: str) -> _Robots:
-    """``model`` on ``sim``'s engine kind; our robot is ``sim``'s own, replaying its gait."""
-    if model == "qrio":
-        return _Robots(sim.engine, sim.qpos0, walking_controls(sim))
-    humanoid = mujoco.MjModel.from_xml_path(humanoid_path())
-    # The same physics steps per engine call as our robot's control period; zero controls.
-    return _Robots(engines.make_engine(sim.engine.name, humanoid, sim.engine.substeps), humanoid.qpos0.copy(),
-                   np.zeros((1, humanoid.nu)))
-
-
-def _compiled(step, state, *args) -> tuple[Callable[[], None], float]:
+def _compiled(step, state, *args) -> tuple[Callable[[], float], float]:
     """Compile ``state = step(state, *args)`` (``step`` jitted) once; return a runner and the
     compile time."""
     start = time.perf_counter()
     compiled = step.lower(state, *args).compile()
     compile_s = time.perf_counter() - start
 
-    def run() -> None:
+    def run() -> float:
         nonlocal state
+        start = time.perf_counter()
         state = jax.block_until_ready(compiled(state, *args))
+        return time.perf_counter() - start
 
     return run, compile_s
 
 
-def _raw_c_physics(robots: _Robots, batch: int, control_steps: int) -> Workload:
-    """The C engine's host side in a Python loop: no JAX, no callback.  The recorded servo
-    targets are replayed period by period; at their end every robot starts over from the pose."""
-    engine, model = robots.engine, robots.engine.model
-    data = mujoco.MjData(model)
-    data.qpos[:] = robots.qpos
-    mujoco.mj_forward(model, data)
-    start = np.empty(mujoco.mj_stateSize(model, FULLPHYSICS))
-    mujoco.mj_getState(model, data, start, FULLPHYSICS)
-    physics, period = np.tile(start, (batch, 1)), 0
-
-    def run() -> None:
-        nonlocal physics, period
-        for _ in range(control_steps):
-            if period == len(robots.ctrl):
-                physics, period = np.tile(start, (batch, 1)), 0
-            physics, _ = engine._simulate(physics, np.tile(robots.ctrl[period], (batch, 1)))
-            period += 1
-
-    return Workload(run, batch * control_steps * engine.substeps, None)
-
-
-def _mjx_physics(robots: _Robots, batch: int, control_steps: int) -> Workload:
-    """A jitted ``lax.scan`` of ``engine.step`` over the recorded servo targets: every call
-    replays the first ``control_steps`` of them from the pose, so it stays a walk's start."""
-    engine = robots.engine
-    rows = np.arange(control_steps) % len(robots.ctrl)
-    ctrl = jnp.tile(jnp.asarray(robots.ctrl[rows], jnp.float32)[:, None, :], (1, batch, 1))
-    pose = engine.init(robots.qpos, batch)
-
-    def steps(state, ctrl):
-        return jax.lax.scan(lambda s, u: (engine.step(s, u), None), state, ctrl)[0]
-
-    start = time.perf_counter()
-    compiled = xla.jit(steps).lower(pose, ctrl).compile()
-    compile_s = time.perf_counter() - start
-    return Workload(lambda: jax.block_until_ready(compiled(pose, ctrl)) and None,
-                    batch * control_steps * engine.substeps, compile_s)
+def _learners(sim: Simulation, batch: int) -> tuple[train.RunSpec, Any]:
+    spec = train.RunSpec(k_s=(FULL_K_S,) * batch, seeds=tuple(range(batch)))
+    return spec, train.make_task(sim, spec)
 
 
 def _full(sim: Simulation, batch: int, control_steps: int) -> Workload:
     """``train.make_chunk``: physics, controller and learner, one learner per robot."""
-    spec = train.RunSpec(k_s=(FULL_K_S,) * batch, seeds=tuple(range(batch)))
-    task = train.make_task(sim, spec)
+    spec, task = _learners(sim, batch)
     chunk = train.make_chunk(sim, task, control_steps)
     run, compile_s = _compiled(chunk, train.init_run(sim, task, spec), sim.engine.init(sim.qpos0, batch))
     return Workload(run, batch * control_steps * sim.engine.substeps, compile_s)
 
 
-def build(case: Case, sim: Simulation, robots: _Robots, options: Options) -> Workload:
+def _replayed_physics(sim: Simulation, batch: int, control_steps: int) -> Workload:
+    """Our robot's physics alone, on exactly the states and servo targets that ``full`` steps.
+
+    Each call advances its own copy of the ``full`` run by ``control_steps`` periods, untimed,
+    recording what the engine was asked (``make_chunk(record=True)``); it then times the engine
+    replaying those steps alone: the C engines' host side (``_simulate``) in a plain loop with no
+    JAX, or a jitted scan of MJX's ``step``.  The n-th call replays the n-th call of ``full``.
+    """
+    engine = sim.engine
+    spec, task = _learners(sim, batch)
+    record = train.make_chunk(sim, task, control_steps, record=True)
+    initial = engine.init(sim.qpos0, batch)
+    run_state = train.init_run(sim, task, spec)
+    if isinstance(engine, engines.MjxEngine):
+        replay, compile_s = _mjx_replay(engine, jax.eval_shape(record, run_state, initial)[1])
+    else:
+        replay, compile_s = functools.partial(_c_replay, engine), None
+
+    def run() -> float:
+        nonlocal run_state
+        run_state, transitions = jax.block_until_ready(record(run_state, initial))
+        return replay(transitions)
+
+    return Workload(run, batch * control_steps * engine.substeps, compile_s)
+
+
+def _c_replay(engine: engines.Engine, transitions: train.Transition) -> float:
+    """Seconds the C engine's host side takes to step the recorded robots that were active."""
+    physics = np.asarray(transitions.physics.physics, np.float64)
+    ctrl = np.asarray(transitions.ctrl, np.float64)
+    steps = [(physics[t, rows], ctrl[t, rows]) for t, active in enumerate(np.asarray(transitions.active))
+             if (rows := np.flatnonzero(active)).size]
+    start = time.perf_counter()
+    for state, u in steps:
+        engine._simulate(state, u)
+    return time.perf_counter() - start
+
+
+def _mjx_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Callable, float]:
+    """A compiled scan stepping every recorded state of MJX alone (all robots: in lockstep MJX
+    steps idle ones too); returns the timed replay and its compile time."""
+    def steps(transitions):
+        def one(checksum, t):  # the checksum keeps XLA from dropping the steps
+            return checksum + jnp.sum(engine.step(t.physics, t.ctrl).qpos), None
+        return jax.lax.scan(one, jnp.float32(0), transitions)[0]
+
+    start = time.perf_counter()
+    compiled = xla.jit(steps).lower(shapes).compile()
+    compile_s = time.perf_counter() - start
+
+    def replay(transitions: train.Transition) -> float:
+        start = time.perf_counter()
+        jax.block_until_ready(compiled(transitions))
+        return time.perf_counter() - start
+
+    return replay, compile_s
+
+
+def _humanoid_physics(sim: Simulation, batch: int, control_steps: int) -> Workload:
+    """MJX's humanoid from ``qpos0`` under zero controls, carried from call to call, with as
+    many physics steps per engine call as our robot's control period."""
+    model = mujoco.MjModel.from_xml_path(humanoid_path())
+    engine = engines.make_engine(sim.engine.name, model, sim.engine.substeps)
+    robot_steps = batch * control_steps * engine.substeps
+    if isinstance(engine, engines._CEngine):
+        physics = np.asarray(engine.init(model.qpos0, batch).physics, np.float64)
+        zeros = np.zeros((batch, model.nu))
+
+        def run() -> float:
+            nonlocal physics
+            start = time.perf_counter()
+            for _ in range(control_steps):
+                physics, _ = engine._simulate(physics, zeros)
+            return time.perf_counter() - start
+
+        return Workload(run, robot_steps, None)
+    zeros = jnp.zeros((batch, model.nu), jnp.float32)
+
+    def steps(state):
+        return jax.lax.scan(lambda s, _: (engine.step(s, zeros), None), state, None, length=control_steps)[0]
+
+    run, compile_s = _compiled(xla.jit(steps), engine.init(model.qpos0, batch))
+    return Workload(run, robot_steps, compile_s)
+
+
+def build(case: Case, sim: Simulation, options: Options) -> Workload:
     """The workload of ``case`` (``sim``: our robot on the case's engine), compiled if it needs to be."""
+    if case.model == "humanoid":
+        return _humanoid_physics(sim, case.batch, options.control_steps)
     if case.workload == "full":
         return _full(sim, case.batch, options.control_steps)
-    if case.engine == "mjx":
-        return _mjx_physics(robots, case.batch, options.control_steps)
-    return _raw_c_physics(robots, case.batch, options.control_steps)
+    return _replayed_physics(sim, case.batch, options.control_steps)
 
 
 def time_workload(workload: Workload, options: Options) -> float | None:
@@ -222,9 +231,8 @@ def time_workload(workload: Workload, options: Options) -> float | None:
     timed_start = time.perf_counter()
     while True:
         call_start = time.perf_counter()
-        workload.run()
+        rates.append(workload.robot_steps / workload.run())
         call_s = time.perf_counter() - call_start
-        rates.append(workload.robot_steps / call_s)
         now = time.perf_counter()
         enough = now - timed_start >= options.seconds and len(rates) >= options.min_calls
         if enough or now - start + call_s > options.budget_seconds:
@@ -243,13 +251,12 @@ def run_benchmarks(todo: list[Case], options: Options,
     """Measure every case; return (results, skipped), each a list of records."""
     results, skipped = [], []
     sims: dict[str, Simulation] = {}
-    robots: dict[tuple[str, str], _Robots] = {}
     last_rate: dict[tuple[str, str, str], tuple[int, float]] = {}  # (engine, model, workload) -> (batch, rate)
     for case in todo:
         key = (case.engine, case.model, case.workload)
         if key in last_rate:
             batch, rate = last_rate[key]
-            robot_steps = case.batch * options.control_steps * robots[case.engine, case.model].engine.substeps
+            robot_steps = case.batch * options.control_steps * sims[case.engine].engine.substeps
             projected = 2 * robot_steps / rate  # warm-up and one timed call, at the smaller batch's rate
             if projected > options.budget_seconds:
                 reason = (f"about {projected:.0f} s of stepping at batch {batch}'s rate, "
@@ -259,9 +266,7 @@ def run_benchmarks(todo: list[Case], options: Options,
                 continue
         if case.engine not in sims:
             sims[case.engine] = make_simulation(case.engine)
-        if (case.engine, case.model) not in robots:
-            robots[case.engine, case.model] = _robots(sims[case.engine], case.model)
-        workload = build(case, sims[case.engine], robots[case.engine, case.model], options)
+        workload = build(case, sims[case.engine], options)
         rate = time_workload(workload, options)
         if rate is None:
             reason = f"one call took longer than the {options.budget_seconds:g} s budget"

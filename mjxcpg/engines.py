@@ -151,10 +151,11 @@ class _CEngine(Engine):
         start = pick(physics).astype(np.float64)
         force = None if pelvis_force is None else pick(pelvis_force).astype(np.float64)
         stepped, stepped_sensors = self._simulate(start, pick(ctrl).astype(np.float64), force)
-        # MuJoCo resets a diverged simulation to time 0: report it as NaN instead.
+        # MuJoCo resets a diverged simulation to time 0: report it as NaN instead.  (A NaN
+        # start time fails the comparison too; a row sums to a finite number only if finite.)
         elapsed = stepped[:, 0] - start[:, 0]
         expected = self.substeps * self.model.opt.timestep
-        diverged = (np.abs(elapsed - expected) > 1e-6 + 1e-3 * expected) | ~np.isfinite(stepped).all(axis=1)
+        diverged = ~((np.abs(elapsed - expected) <= 1e-6 + 1e-3 * expected) & np.isfinite(stepped.sum(axis=1)))
         if diverged.any():
             stepped[diverged] = np.nan
             stepped_sensors[diverged] = np.nan

@@ -54,8 +54,18 @@ def init_run(sim: Simulation, task: Task, spec: RunSpec) -> RunState:
                     learners=jax.tree.map(lambda *xs: jnp.stack(xs), *learners))
 
 
-def make_chunk(sim: Simulation, task: Task, steps: int) -> Callable[[RunState], RunState]:
-    """A jitted function advancing every learner by ``steps`` control periods."""
+class Transition(NamedTuple):
+    """What a chunk asked its engine in one control period (``make_chunk(record=True)``)."""
+
+    physics: Any       # the batched engine state stepped, after the period's resets
+    ctrl: jax.Array    # (batch, nu) servo targets
+    active: jax.Array  # (batch,) robots stepped
+
+
+def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) -> Callable:
+    """A jitted ``chunk(run, initial) -> run`` advancing every learner by ``steps`` control
+    periods; with ``record``, ``-> (run, transitions)``, a ``Transition`` per period stacked
+    on a leading axis (the benchmarks replay them as physics alone)."""
     engine = sim.engine
     home = home_ctrl(task)
     step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None))
@@ -65,14 +75,14 @@ def make_chunk(sim: Simulation, task: Task, steps: int) -> Callable[[RunState], 
         run, initial = carry
         learners, ctrl, ended = step_learners(run.learners, engine.sensors(run.physics), home)
         physics = engine.reset(run.physics, initial, ended)
-        # A finished learner's robot stands still: the C engines then skip it.
-        physics = engine.step(physics, ctrl, ~learners_done(learners))
-        return (RunState(physics, learners), initial), None
+        active = ~learners_done(learners)  # a finished learner's robot stands still: the C engines skip it
+        stepped = RunState(engine.step(physics, ctrl, active), learners)
+        return (stepped, initial), Transition(physics, ctrl, active) if record else None
 
     @xla.jit
-    def chunk(run: RunState, initial: Any) -> RunState:
-        (run, _), _ = jax.lax.scan(body, (run, initial), None, length=steps)
-        return run
+    def chunk(run: RunState, initial: Any):
+        (run, _), transitions = jax.lax.scan(body, (run, initial), None, length=steps)
+        return (run, transitions) if record else run
 
     return chunk
 
