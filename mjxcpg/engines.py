@@ -38,6 +38,7 @@ _FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CTRL_AND_XFRC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 _ROBOTS_PER_THREAD = 4  # the native engine uses its threads from this many robots per thread
 PELVIS = "pelvis"  # the body that ``Engine.step``'s ``pelvis_force`` pushes
+_CPU_SLICE = 32  # MJX on the CPU steps at most this many robots in one vmap (MjxEngine._map)
 
 
 def default_engine() -> str:
@@ -281,10 +282,34 @@ class MjxEngine(Engine):
             pushed = data.replace(xfrc_applied=data.xfrc_applied.at[self.pelvis, :3].set(force))
             return one_robot(pushed, u).replace(xfrc_applied=data.xfrc_applied)
 
-        stepped = (jax.vmap(one_robot)(state, ctrl) if pelvis_force is None
-                   else jax.vmap(one_pushed_robot)(state, ctrl, pelvis_force.astype(state.qpos.dtype)))
+        if pelvis_force is None:
+            stepped = self._map(one_robot, state, ctrl)
+        else:
+            stepped = self._map(one_pushed_robot, state, ctrl, pelvis_force.astype(state.qpos.dtype))
         # In lockstep every robot costs the same, so idle ones are stepped and discarded.
         return stepped if active is None else tree_where(active, stepped, state)
+
+    @staticmethod
+    def _map(one_robot, *batched):
+        """``vmap`` over the robots; on the CPU, in slices of at most ``_CPU_SLICE`` robots.
+
+        jaxlib's CPU Cholesky (MJX's Newton solver) splits a large batch over XLA's thread
+        pool from inside that pool and waits; with as few threads as this project's 2-core
+        machines, two such calls can hold every thread and deadlock (seen from 256 robots).
+        Slices below the split size never fan out.
+        """
+        batch = batched[0].qpos.shape[0]
+        if jax.default_backend() != "cpu" or batch <= _CPU_SLICE:
+            return jax.vmap(one_robot)(*batched)
+        slices = -(-batch // _CPU_SLICE)
+        pad = slices * _CPU_SLICE - batch  # padded with copies of the first robots
+
+        def split(x):  # explicit shapes: MJX data has empty leaves, which reshape(-1) rejects
+            x = jnp.concatenate([x, x[:pad]]) if pad else x
+            return x.reshape((slices, _CPU_SLICE) + x.shape[1:])
+
+        stepped = jax.lax.map(lambda args: jax.vmap(one_robot)(*args), jax.tree.map(split, batched))
+        return jax.tree.map(lambda x: x.reshape((slices * _CPU_SLICE,) + x.shape[2:])[:batch], stepped)
 
 
 def make_engine(name: str, model: mujoco.MjModel, substeps: int) -> Engine:
