@@ -28,8 +28,9 @@ from conftest import HAND, LEARNED, load_learned_policy
 from mjxcpg import engines, runs, walk
 from mjxcpg.cli import main
 from mjxcpg.config import load_spec
-from mjxcpg.controller import control_step, roll_rate_feedback
+from mjxcpg.controller import control_step, joint_targets, roll_rate_feedback
 from mjxcpg.robot import Layout, observe
+from mjxcpg.sim import make_simulation
 
 SEED = 0
 ONE_STEP_STATES = 64
@@ -375,3 +376,21 @@ def test_mjx_runs_the_quick_sweep(quick_mjx_run):
     succeeded = sum(r["succeeded"] for r in summary["learners"])
     assert f"| all | {spec.batch} | {succeeded} |" in (out / "table1.md").read_text()
     assert list(out.glob("policy_map_*.png")) and list(out.glob("learning_curve_*.png"))
+
+
+def test_mjx_slices_on_the_cpu_step_like_one_vmap(monkeypatch):
+    """Above ``_CPU_SLICE`` robots MJX steps the batch in slices (a jaxlib deadlock, see
+    ``MjxEngine._map``); sliced and whole, every robot steps alike, padding included."""
+    sim = make_simulation("mjx")
+    batch = 5
+    start = sim.engine.init(sim.qpos0, batch)
+    start = start.replace(qvel=start.qvel.at[:, 0].set(jnp.linspace(-0.2, 0.2, batch)))
+    ctrl = jnp.tile(joint_targets(sim.params, sim.layout, jnp.zeros(6)), (batch, 1))  # standing targets
+    whole = jax.jit(lambda s, u: sim.engine.step(s, u))(start, ctrl)
+    monkeypatch.setattr(engines, "_CPU_SLICE", 2)
+    step_in_slices = lambda s, u: sim.engine.step(s, u)  # a new function: traced afresh
+    top_level = jax.make_jaxpr(step_in_slices)(start, ctrl).jaxpr.eqns
+    assert any(e.primitive.name == "scan" and e.params["length"] == 3 for e in top_level)  # 5 robots, 2 + 2 + 2
+    sliced = jax.jit(step_in_slices)(start, ctrl)
+    np.testing.assert_allclose(sliced.qpos, whole.qpos, atol=1e-5)
+    np.testing.assert_allclose(sliced.qvel, whole.qvel, atol=1e-3)
