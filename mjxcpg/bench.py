@@ -190,7 +190,7 @@ def _humanoid_physics(sim: Simulation, batch: int, control_steps: int) -> Worklo
     model = mujoco.MjModel.from_xml_path(humanoid_path())
     engine = engines.make_engine(sim.engine.name, model, sim.engine.substeps)
     robot_steps = batch * control_steps * engine.substeps
-    if isinstance(engine, engines._CEngine):
+    if not isinstance(engine, engines.MjxEngine):
         physics = np.asarray(engine.init(model.qpos0, batch).physics, np.float64)
         zeros = np.zeros((batch, model.nu))
 

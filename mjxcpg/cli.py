@@ -194,7 +194,8 @@ def cmd_eval(args: argparse.Namespace) -> dict:
             progress(f"transfer: {args.transfer_repeats} walks per policy on the hardware robot")
         result["transfer"] = hardware.transfer(run_dir, engine=args.engine, learners=learners,
                                                repeats=args.transfer_repeats)
-    out = Path(args.out) if args.out else run_dir
+    # Each robot's evaluation has its own place, so that one never overwrites the other's.
+    out = Path(args.out) if args.out else run_dir if args.robot == "nominal" else run_dir / args.robot
     table1_text = report.table1(train.learner_results(spec, state.learners))
     summary = report.write_eval_report(run_dir, result, out, table1_text)
     return {"report": str(out / "report.md"), "engine": result["engine"], "robot": args.robot, **summary}
@@ -309,7 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
                             help="evaluations to leave out (transfer: --robot hardware only)")
     evaluation.add_argument("--transfer-repeats", type=_positive_int, default=20,
                             help="with --robot hardware: walks per policy, each with other sensor noise")
-    evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory)")
+    evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
+                                           "with --robot hardware, its hardware/ subdirectory)")
     evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
     evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     evaluation.set_defaults(handler=cmd_eval)

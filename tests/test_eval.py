@@ -166,3 +166,14 @@ def test_paper_budgets_on_the_learned_policy(learned_run, tmp_path):
                  "--quiet"]) == 0
     rm = json.loads((tmp_path / "eval" / "evaluation.json").read_text())["learners"][0]["return_map"]
     assert rm["perturbations"] == 50 and rm["fixed_point_steps"] == 100 and abs(rm["eigenvalue"]) < 1
+
+
+def test_hardware_evaluation_does_not_overwrite_the_nominal_one(learned_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(learned_run, run)
+    (run / "report.md").write_text("the nominal robot's report\n")
+    argv = ["eval", "--run", str(run), "--engine", "native", "--robot", "hardware", "--quiet",
+            "--fixed-point-steps", "2", "--skip", "return_map", "slopes", "pushes", "transfer"]
+    assert main(argv) == 0
+    assert (run / "report.md").read_text() == "the nominal robot's report\n"
+    assert "robot `hardware`" in (run / "hardware" / "report.md").read_text()
