@@ -97,12 +97,17 @@ def humanoid_path() -> str:
     return str(path)
 
 
+def _compile(jitted, *args) -> tuple[Callable, float]:
+    """``jitted`` compiled for ``args``, and the seconds that took."""
+    start = time.perf_counter()
+    compiled = jitted.lower(*args).compile()
+    return compiled, time.perf_counter() - start
+
+
 def _compiled(step, state, *args) -> tuple[Callable[[], float], float]:
     """Compile ``state = step(state, *args)`` (``step`` jitted) once; return a runner and the
     compile time."""
-    start = time.perf_counter()
-    compiled = step.lower(state, *args).compile()
-    compile_s = time.perf_counter() - start
+    compiled, compile_s = _compile(step, state, *args)
 
     def run() -> float:
         nonlocal state
@@ -172,9 +177,7 @@ def _mjx_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Calla
             return checksum + jnp.sum(engine.step(t.physics, t.ctrl).qpos), None
         return jax.lax.scan(one, jnp.float32(0), transitions)[0]
 
-    start = time.perf_counter()
-    compiled = xla.jit(steps).lower(shapes).compile()
-    compile_s = time.perf_counter() - start
+    compiled, compile_s = _compile(xla.jit(steps), shapes)
 
     def replay(transitions: train.Transition) -> float:
         start = time.perf_counter()

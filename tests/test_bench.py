@@ -2,7 +2,6 @@
 
 import json
 
-
 from mjxcpg.cli import main
 
 RECORD_KEYS = {"engine", "model", "batch", "workload", "robot_steps_per_s", "compile_s"}
