@@ -1,5 +1,5 @@
 import sys
 
-from mjxcpg.cli import main
+from mjxcpg.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

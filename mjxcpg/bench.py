@@ -304,7 +304,8 @@ def overheads(results: list[dict], batch: int = RATIO_BATCH) -> list[dict]:
 
 
 def machine() -> dict:
-    """Where the figures come from: CPU, cores, JAX backend and devices, versions, load."""
+    """Where the figures come from: CPU, cores, JAX backend and devices, XLA:CPU's threads
+    (``NPROC``, see ``xla.one_cpu_thread``), versions, load."""
     cpu = platform.processor()
     with contextlib.suppress(OSError), open("/proc/cpuinfo") as f:
         cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
@@ -313,7 +314,8 @@ def machine() -> dict:
     return {
         "cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(),
         "python": sys.version.split()[0], "jax_backend": jax.default_backend(),
-        "jax_devices": [str(d) for d in jax.devices()], "versions": versions,
+        "jax_devices": [str(d) for d in jax.devices()],
+        "xla_cpu_threads": os.environ.get("NPROC", "one per core"), "versions": versions,
         "load_average_1min": os.getloadavg()[0],
         "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }

@@ -359,5 +359,13 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def entry() -> int:
+    """The ``mjxcpg`` program: ``main`` in a process whose XLA:CPU is set up for this library."""
+    from mjxcpg import xla
+
+    xla.one_cpu_thread()
+    return main()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

@@ -145,30 +145,33 @@ class _CEngine(Engine):
     def _host_step(self, physics: np.ndarray, sensordata: np.ndarray, ctrl: np.ndarray,
                    active: np.ndarray, pelvis_force: np.ndarray | None = None) -> None:
         """Step the active rows of ``physics`` and ``sensordata`` (float32) in place."""
-        rows = None if active.all() else np.flatnonzero(active)
-        if rows is not None and rows.size == 0:
+        rows = slice(None) if active.all() else np.flatnonzero(active)
+        start = physics[rows].astype(np.float64)
+        if len(start) == 0:
             return
-        pick = (lambda x: x) if rows is None else (lambda x: x[rows])
-        start = pick(physics).astype(np.float64)
-        force = None if pelvis_force is None else pick(pelvis_force).astype(np.float64)
-        stepped, stepped_sensors = self._simulate(start, pick(ctrl).astype(np.float64), force)
-        # MuJoCo resets a diverged simulation to time 0: report it as NaN instead.  (A NaN
-        # start time fails the comparison too; a row sums to a finite number only if finite.)
-        elapsed = stepped[:, 0] - start[:, 0]
-        expected = self.substeps * self.model.opt.timestep
-        diverged = ~((np.abs(elapsed - expected) <= 1e-6 + 1e-3 * expected) & np.isfinite(stepped.sum(axis=1)))
-        if diverged.any():
+        force = None if pelvis_force is None else pelvis_force[rows]
+        stepped, stepped_sensors = self._simulate(start, ctrl[rows], force)
+        diverged = self._diverged(start, stepped)
+        if diverged is not None:
             stepped[diverged] = np.nan
             stepped_sensors[diverged] = np.nan
-        if rows is None:
-            physics[:], sensordata[:] = stepped, stepped_sensors
-        else:
-            physics[rows], sensordata[rows] = stepped, stepped_sensors
+        physics[rows], sensordata[rows] = stepped, stepped_sensors
+
+    def _diverged(self, start: np.ndarray, stepped: np.ndarray) -> np.ndarray | None:
+        """Which rows diverged, or None if none did.  MuJoCo resets a diverged simulation to
+        time 0, so its clock did not advance by the control period; a NaN start time fails
+        that test too, and a row sums to a finite number only if it is finite."""
+        expected = self.substeps * self.model.opt.timestep
+        on_time = np.abs(stepped[:, 0] - start[:, 0] - expected) <= 1e-6 + 1e-3 * expected
+        if on_time.all() and np.isfinite(stepped.sum()):  # the usual case, in few numpy calls
+            return None
+        return ~(on_time & np.isfinite(stepped.sum(axis=1)))
 
     @abc.abstractmethod
     def _simulate(self, physics: np.ndarray, ctrl: np.ndarray,
                   pelvis_force: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Host side: (batch, nstate), (batch, nu), optional (batch, 3) -> new state and sensordata."""
+        """Host side: (batch, nstate) float64, (batch, nu) and optional (batch, 3) of any float
+        type -> new state and sensordata, float64."""
 
 
 class MujocoEngine(_CEngine):
@@ -217,7 +220,7 @@ class NativeEngine(_CEngine):
             xfrc = np.zeros((batch, self.model.nbody, 6))
             xfrc[:, self.pelvis, :3] = pelvis_force
             ctrl = np.concatenate([ctrl, xfrc.reshape(batch, -1)], axis=1)
-        control = np.repeat(ctrl[:, None, :], self.substeps, axis=1)
+        control = np.broadcast_to(ctrl[:, None, :], (batch, self.substeps, ctrl.shape[1])).astype(np.float64)
         threaded = batch >= _ROBOTS_PER_THREAD * self.threads
         runner, datas = (self._pool, self._datas) if threaded else (self._inline, self._datas[:1])
         out = self._outputs(batch)

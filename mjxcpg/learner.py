@@ -67,7 +67,8 @@ class Bookkeeping(NamedTuple):
 
 class LearnerState(NamedTuple):
     k_s: jax.Array
-    key: jax.Array
+    key: jax.Array                # the learner's random stream (``period_draws``)
+    period: jax.Array             # control periods since the run started
     cpg: cpg.CPGState
     weights: ac.Weights
     traces: ac.Traces
@@ -110,9 +111,27 @@ def policy_input(obs: Observation) -> jax.Array:
     return jnp.where(jnp.isfinite(x), x, 0.0)
 
 
-def _handover_step(task: Task, key: jax.Array) -> jax.Array:
+class Draws(NamedTuple):
+    """The random numbers of one control period of one learner."""
+
+    noise: jax.Array     # n ~ N(0, 1) of eq (12), the policy's exploration
+    handover: jax.Array  # uniform in [0, 1): the next trial's hand-over time, if this one ends
+
+
+def period_draws(key: jax.Array, period: jax.Array) -> Draws:
+    """The draws of control period ``period`` of the learner whose stream is ``key``.
+
+    They depend on the period's index alone, so ``train.make_chunk`` draws a whole chunk's at
+    once, outside its loop over periods (a draw costs several small XLA loops, which add up
+    when repeated every 8 ms), and a run cut into other chunks, or resumed, draws the same.
+    """
+    noise_key, handover_key = jax.random.split(jax.random.fold_in(key, period))
+    return Draws(noise=jax.random.normal(noise_key), handover=jax.random.uniform(handover_key))
+
+
+def _handover_step(task: Task, uniform: jax.Array) -> jax.Array:
     low, high = task.trial.hand_seconds
-    return jnp.round(jax.random.uniform(key, (), minval=low, maxval=high) / task.dt).astype(jnp.int32)
+    return jnp.round((low + (high - low) * uniform) / task.dt).astype(jnp.int32)
 
 
 def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
@@ -120,11 +139,11 @@ def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
     k = task.basis.centers.shape[0]
     n = task.trial.max_trials
     return LearnerState(
-        k_s=jnp.float32(k_s), key=key, cpg=cpg.init_state(),
+        k_s=jnp.float32(k_s), key=key, period=jnp.int32(0), cpg=cpg.init_state(),
         weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k),
         previous_basis=jnp.zeros(k, jnp.float32), has_previous=jnp.bool_(False),
         book=Bookkeeping(
-            trial=jnp.int32(0), step=jnp.int32(0), handover=_handover_step(task, sub),
+            trial=jnp.int32(0), step=jnp.int32(0), handover=_handover_step(task, jax.random.uniform(sub)),
             trial_return=jnp.float32(0), filtered_vx=jnp.float32(0), streak=jnp.int32(0),
             trials_to_success=jnp.int32(-1), returns=jnp.zeros(n, jnp.float32),
             falls=jnp.zeros(n, bool)),
@@ -152,9 +171,10 @@ def is_done(task: Task, state: LearnerState) -> jax.Array:
     return (state.book.trials_to_success >= 0) | (state.book.trial >= task.trial.max_trials)
 
 
-def learner_step(task: Task, state: LearnerState, sensors: Sensors,
-                 home_ctrl: jax.Array) -> tuple[LearnerState, jax.Array, jax.Array]:
-    """One control period of one learner: returns (state, servo targets, trial ended)."""
+def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: jax.Array,
+                 draws: Draws) -> tuple[LearnerState, jax.Array, jax.Array]:
+    """One control period of one learner, with that period's ``period_draws``: returns
+    (state, servo targets, trial ended)."""
     p, book = task.learner, state.book
     obs = observe(task.layout, sensors)
     height, forward_velocity, fell, estimate_state = measured_inputs(task, state, sensors, obs)
@@ -173,10 +193,9 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
     weights = tree_where(update, ac.learner_update(p, state.weights, state.traces, delta, task.dt),
                          state.weights)
 
-    key, noise_key, handover_key = jax.random.split(state.key, 3)
     mean = ngnet.ngnet_value(weights.mean, b)
     std = ngnet.policy_std(weights.sigma)
-    v = policy.sample_action(mean, std, jax.random.normal(noise_key))
+    v = policy.sample_action(mean, std, draws.noise)
     a5 = jnp.where(acting, policy.feedback_action(v, p.a_max), hand_feedback(task.controller, obs))
     traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt),
                         state.traces)
@@ -192,7 +211,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
     book = Bookkeeping(
         trial=book.trial + record.astype(jnp.int32),
         step=jnp.where(ended, 0, book.step + 1),
-        handover=jnp.where(ended, _handover_step(task, handover_key), book.handover),
+        handover=jnp.where(ended, _handover_step(task, draws.handover), book.handover),
         trial_return=jnp.where(ended, 0.0, trial_return),
         filtered_vx=jnp.where(ended, 0.0, filtered_vx),
         streak=streak,
@@ -201,7 +220,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors,
         falls=book.falls.at[index].set(jnp.where(record, fell, book.falls[index])),
     )
     state = LearnerState(
-        k_s=state.k_s, key=key,
+        k_s=state.k_s, key=state.key, period=state.period + 1,
         cpg=tree_where(ended, cpg.init_state(), cpg_state),
         weights=weights,
         traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),

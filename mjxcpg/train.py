@@ -15,7 +15,8 @@ import numpy as np
 from mjxcpg import actor_critic as ac
 from mjxcpg import ngnet, xla
 from mjxcpg.controller import ControllerParams
-from mjxcpg.learner import LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step
+from mjxcpg.learner import (LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step,
+                            period_draws)
 from mjxcpg.sim import Simulation
 
 
@@ -68,12 +69,14 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
     on a leading axis (the benchmarks replay them as physics alone)."""
     engine = sim.engine
     home = home_ctrl(task)
-    step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None))
+    step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None, 0))
     learners_done = jax.vmap(functools.partial(is_done, task))
+    # (steps, batch) draws: every period's random numbers, drawn before the loop
+    chunk_draws = jax.vmap(jax.vmap(period_draws), in_axes=(None, 0))
 
-    def body(carry: tuple[RunState, Any], _):
+    def body(carry: tuple[RunState, Any], draws):
         run, initial = carry
-        learners, ctrl, ended = step_learners(run.learners, engine.sensors(run.physics), home)
+        learners, ctrl, ended = step_learners(run.learners, engine.sensors(run.physics), home, draws)
         physics = engine.reset(run.physics, initial, ended)
         active = ~learners_done(learners)  # a finished learner's robot stands still: the C engines skip it
         stepped = RunState(engine.step(physics, ctrl, active), learners)
@@ -81,7 +84,9 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
 
     @xla.jit
     def chunk(run: RunState, initial: Any):
-        (run, _), transitions = jax.lax.scan(body, (run, initial), None, length=steps)
+        periods = run.learners.period + jnp.arange(steps)[:, None]
+        draws = chunk_draws(run.learners.key, periods)
+        (run, _), transitions = jax.lax.scan(body, (run, initial), draws)
         return (run, transitions) if record else run
 
     return chunk

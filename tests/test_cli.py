@@ -33,3 +33,16 @@ def test_walk_json_is_the_last_line(capsys):
     for key in ("fell", "seconds", "mean_vx", "mean_pelvis_height", "gait_period", "engine"):
         assert key in result
     assert result["engine"] == "mujoco" and result["seconds"] == pytest.approx(3.0)
+
+
+def test_the_program_gives_xla_one_cpu_thread_unless_nproc_is_set(monkeypatch):
+    import os
+
+    from mjxcpg import xla
+
+    monkeypatch.delenv("NPROC", raising=False)
+    xla.one_cpu_thread()
+    assert os.environ["NPROC"] == "1"
+    monkeypatch.setenv("NPROC", "8")
+    xla.one_cpu_thread()
+    assert os.environ["NPROC"] == "8"
