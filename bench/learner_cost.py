@@ -17,7 +17,7 @@ import time
 
 import jax
 
-from mjxcpg import bench, engines, train
+from mjxcpg import bench, engines, train, xla
 from mjxcpg.sim import make_simulation
 
 
@@ -61,4 +61,5 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
+    xla.one_cpu_thread()  # as the mjxcpg program does
     sys.exit(main(sys.argv[1:]))

@@ -5,7 +5,9 @@
 
 import sys
 
+from mjxcpg import xla
 from mjxcpg.cli import main
 
 if __name__ == "__main__":
+    xla.one_cpu_thread()  # as the mjxcpg program does
     sys.exit(main(["bench", *sys.argv[1:]]))

@@ -24,7 +24,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg import report, runs, walk
+from mjxcpg import report, runs, walk, xla
 from mjxcpg.controller import ControllerParams, roll_rate_feedback
 from mjxcpg.learner import TrialParams
 from mjxcpg.sim import make_simulation
@@ -89,4 +89,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    xla.one_cpu_thread()  # as the mjxcpg program does
     main()
