@@ -5,9 +5,7 @@
 
 import sys
 
-from mjxcpg import xla
-from mjxcpg.cli import main
+from mjxcpg.cli import entry
 
 if __name__ == "__main__":
-    xla.one_cpu_thread()  # as the mjxcpg program does
-    sys.exit(main(["bench", *sys.argv[1:]]))
+    sys.exit(entry(["bench", *sys.argv[1:]]))

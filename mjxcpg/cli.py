@@ -359,12 +359,12 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def entry() -> int:
+def entry(argv: list[str] | None = None) -> int:
     """The ``mjxcpg`` program: ``main`` in a process whose XLA:CPU is set up for this library."""
     from mjxcpg import xla
 
     xla.one_cpu_thread()
-    return main()
+    return main(argv)
 
 
 if __name__ == "__main__":

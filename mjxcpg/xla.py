@@ -42,7 +42,7 @@ def one_cpu_thread() -> None:
     learner's kernels are small: XLA spreading them over its threads costs more in hand-offs
     than it saves.  On the 2-core benchmark machine, at the paper's batch of 27, one thread
     cut the native engine's time between two physics calls from about 92 to 68 us; MJX on
-    the CPU was as fast within noise, or faster (docs/performance.md).  Set ``NPROC`` to the core count to
-    get XLA's default back, for example for MJX on a CPU with many cores.
+    the CPU was as fast within noise, or faster (docs/performance.md).  Set ``NPROC`` to the
+    core count to get XLA's default back, for example for MJX on a CPU with many cores.
     """
     os.environ.setdefault("NPROC", "1")
