@@ -170,12 +170,16 @@ def _c_replay(engine: engines.Engine, transitions: train.Transition) -> float:
 
 
 def _mjx_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Callable, float]:
-    """A compiled scan stepping every recorded state of MJX alone (all robots: in lockstep MJX
-    steps idle ones too); returns the timed replay and its compile time."""
+    """A compiled scan making MJX's recorded calls alone, active masks included (in lockstep
+    MJX steps idle robots too and keeps their old state, as in ``full``); returns the timed
+    replay and its compile time."""
     def steps(transitions):
-        def one(checksum, t):  # the checksum keeps XLA from dropping the steps
-            return checksum + jnp.sum(engine.step(t.physics, t.ctrl).qpos), None
-        return jax.lax.scan(one, jnp.float32(0), transitions)[0]
+        # Each call's whole new state is carried out of the loop, as ``full`` carries it: XLA
+        # may then drop nothing (summing only qpos let it drop the sensors, for one).
+        def one(_, t):
+            return engine.step(t.physics, t.ctrl, t.active), None
+        first = jax.tree.map(lambda x: x[0], transitions.physics)
+        return jax.lax.scan(one, first, transitions)[0]
 
     compiled, compile_s = _compile(xla.jit(steps), shapes)
 
