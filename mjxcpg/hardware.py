@@ -69,16 +69,16 @@ def body_factors(model: mujoco.MjModel, mismatch: HardwareMismatch) -> tuple[np.
 def perturbed_model(model: mujoco.MjModel, mismatch: HardwareMismatch = HARDWARE) -> mujoco.MjModel:
     """A copy of ``model`` with the hardware's mass, inertia, friction and servo mismatch.
 
-    Friction of a contact is the larger of its two geoms', so the floor and both soles get
-    ``sole_friction``.  Derived constants (subtree masses, the joint-space inertia at qpos0)
+    Friction of a contact is the larger of its two geoms', so every geom that collides (the
+    floor and the soles' contact points) gets ``sole_friction``.  Derived constants (subtree masses, the joint-space inertia at qpos0)
     are recomputed with ``mj_setConst``.
     """
     hw = copy.deepcopy(model)
     mass, inertia = body_factors(model, mismatch)
     hw.body_mass[:] = model.body_mass * mass
     hw.body_inertia[:] = model.body_inertia * inertia[:, None]
-    for name in ("floor", "l_sole", "r_sole"):
-        hw.geom_friction[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name), 0] = mismatch.sole_friction
+    colliding = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    hw.geom_friction[colliding, 0] = mismatch.sole_friction
     hw.actuator_gainprm[:, 0] = model.actuator_gainprm[:, 0] * mismatch.servo_kp_scale
     hw.actuator_biasprm[:, 1] = model.actuator_biasprm[:, 1] * mismatch.servo_kp_scale
     hinge_dofs = model.jnt_dofadr[model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]

@@ -1,19 +1,16 @@
-"""MJX, the batched engine, against MuJoCo C, the scalar reference (issue 4, deliverable 5).
+"""MJX, the batched engine, against MuJoCo C, the scalar reference.
 
-Measured figures and the reasons for every tolerance are in ``docs/engines.md``.  In short:
-MJX runs in float32 and MuJoCo C in float64, with the same Newton solver (2 iterations, 4
-line-search iterations) from the same warm start, so where both see the same contacts one
-step agrees to float32 rounding (in 97% of such states; the rest take another branch of the
-unconverged solver).  Where they do not, the two engines *model* contact
-differently: MJX's plane-box collision keeps only the sole corners within a 1 mm skin of
-the deepest one, MuJoCo C keeps every penetrating corner, so a tilted sole (heel strike,
-toe-off) carries its load on fewer points in MJX.  That is a difference of physics, not of
-arithmetic, and it is bounded here loosely, then judged where it matters: by the pelvis
-trajectory of a short walk and by the walking speed of the same learned policy.
+Measured figures and the reasons for every tolerance are in ``docs/engines.md``.  The soles
+touch the floor through spheres at their corners, a contact both engines compute the same
+way, and the Newton solver runs until it converges, so that its result does not depend on
+either engine's line search.  Then MJX and C compute the same step: in float64 they agree
+to within 1e-9 of the step's velocity change, and MJX's float32 differs from C's float64 by
+float32 rounding, amplified by the conditioning of the solve.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from typing import NamedTuple
 
@@ -29,45 +26,39 @@ from mjxcpg import engines, runs, walk
 from mjxcpg.cli import main
 from mjxcpg.config import load_spec
 from mjxcpg.controller import control_step, joint_targets, roll_rate_feedback
-from mjxcpg.robot import Layout, observe
+from mjxcpg.robot import MODEL_PATH, Layout, observe
 from mjxcpg.sim import make_simulation
 
 SEED = 0
-ONE_STEP_STATES = 64
+ONE_STEP_STATES = 100
 WALK_SECONDS_FOR_STATES = 5.0   # states are sampled from this C walk, after its first second
-SOLE_GEOMS = ("l_sole", "r_sole")
+FEET = ("l_foot", "r_foot")
 
-# One physics step (4 ms) from the same state; figures measured on the test's 64 states and on
-# 256 of the same kind (docs/engines.md).  Where both engines find the same penetrating sole
-# corners, most states agree to float32 arithmetic (measured maxima over 64 / 256 states: qpos
-# 4.1e-7 / 1.2e-7, velocity-change error 3.8e-5 / 1.1e-5, sole force 6.5e-5 / 2.5e-5 m g, gyro
-# and orientation 6e-7 / 7e-7); a few (0 of 45 / 6 of 176) take another branch of the
-# 2-iteration solver.
-TIGHT_QPOS_ATOL = 2e-6            # m or rad; a step moves qpos by |qvel| dt = 1e-3 to 1.5e-2
-TIGHT_VELOCITY_CHANGE_REL = 2e-4  # of |qvel_c - qvel_start| = 3 to 8 (rad or m)/s
-TIGHT_TOUCH_REL = 5e-4            # of the robot's weight m g = 66 N (sole forces reach 190 N)
-SENSOR_READ_ATOL = 5e-6           # gyro (rad/s) and orientation quaternion: read before the step
-MIN_TIGHT_FRACTION = 0.9          # of the same-contact states; measured 1.0 / 0.97
-SAME_CONTACTS_VELOCITY_CHANGE_REL = 0.1   # measured at most 0.051
-SAME_CONTACTS_TOUCH_REL = 0.05            # measured at most 0.022 m g
-SAME_CONTACTS_QPOS_ATOL = 1e-3            # measured at most 5e-4
-# Where MJX's contact set differs from C's (31% of the states; see the module docstring).
-OTHER_CONTACTS_VELOCITY_CHANGE_REL = 1.0  # measured at most 0.52 / 0.74, median 0.27 / 0.18
-OTHER_CONTACTS_QPOS_ATOL = 0.03           # measured at most 0.006 / 0.013
-MIN_SAME_CONTACT_FRACTION = 0.4           # states on the floor with the same contacts; measured 0.6
+# One 4 ms physics step from the same state.  MJX computes in float32, C in float64.  The
+# step solves for the acceleration with a Newton Hessian whose condition number is at most
+# 6.2e3 over walking states (median 2.4e3); float32's unit roundoff is 2^-24 = 6e-8, so the
+# relative error of a float32 solve is up to about 6.2e3 * 6e-8 = 3.7e-4.
+FLOAT32_VELOCITY_CHANGE_REL = 4e-4  # of |qvel_c - qvel_start| (3 to 8 in norm): the acceleration's error
+FLOAT32_TOUCH_REL = 4e-4            # of max(sole force, m g): forces come out of the same solve
+FLOAT32_QPOS_ATOL = 2e-5            # m or rad: 4e-4 of a velocity change of 8, over dt = 4 ms, is 1.3e-5
+SENSOR_READ_ATOL = 5e-6             # gyro (rad/s), orientation: read before the step, |x| < 10, 8 ulps
+MIN_FLOAT32_FRACTION = 0.95         # of the states within these tolerances ...
+FLOAT32_OUTLIER_FACTOR = 10.0       # ... and every state within 10 times them
+# MJX in float64 against C: the same algorithm in the same arithmetic.  The solver stops at
+# MuJoCo's tolerance (1e-8 of the cost's scale), so both stop after the same iteration
+# unless a state sits on that threshold.
+FLOAT64_VELOCITY_CHANGE_REL = 1e-9
+MIN_FLOAT64_FRACTION = 0.95
 
-# The hand-designed walk from standing (measured maxima: first 1 s, height 1.2 mm, forward
-# position 4.4 mm; first 2 s, 4.7 mm and 16 mm, of 0.145 m walked).
+# The hand-designed walk from standing: the pelvis stands at 0.283 m, swings 15 mm within a
+# step and walks about 0.15 m in 2 s.  Both engines integrate the same physics, so the
+# trajectories part no more than C's own from starts that differ by float32 rounding.
 ROLLOUT_SECONDS = 2.0
-FIRST_SECOND_HEIGHT_ATOL = 0.003   # m; pelvis at 0.283 m, swinging 15 mm within a step
-FIRST_SECOND_FORWARD_ATOL = 0.01   # m; 0.05 m walked
-ROLLOUT_HEIGHT_ATOL = 0.01         # m
-ROLLOUT_HEIGHT_RMS = 0.0025        # m; measured 0.9 mm
-ROLLOUT_FORWARD_ATOL = 0.03        # m; 20% of the distance walked
-# The learned policy's mean speed over 18 s (measured: C 0.062 m/s, MJX 0.053 m/s, 15% apart;
-# C's own spread over 16 starts perturbed by 1e-4 rad is +-2%).
-WALKING_SPEED_REL = 0.10           # the issue's criterion
-LEARNED_SPEED_REL_MEASURED_BOUND = 0.25
+ROLLOUT_ATOL = 0.002               # m: C against itself from float32-sized start perturbations
+# Mean speed over 18 s (after 2 s of settling).  C's own spread over 16 starts perturbed by
+# 1e-4 rad is +-2% for a learned policy and +-0.5% for the hand-designed one (docs/engines.md).
+HAND_SPEED_REL = 0.03
+LEARNED_SPEED_REL = 0.05
 
 
 class StartStates(NamedTuple):
@@ -125,98 +116,99 @@ def perturbed_walking_states(sim, count: int, seed: int) -> StartStates:
     return StartStates(*(x.astype(np.float32).astype(np.float64) for x in (qpos, qvel, ctrl)))
 
 
-def c_physics_state(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-    """The C engines' state rows (mjSTATE_FULLPHYSICS) for robots at ``qpos``, ``qvel``."""
-    data = mujoco.MjData(model)
-    size = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    rows = np.empty((len(qpos), size))
-    for b in range(len(qpos)):
-        mujoco.mj_resetData(model, data)
-        data.qpos[:], data.qvel[:] = qpos[b], qvel[b]
-        mujoco.mj_getState(model, data, rows[b], mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    return rows
-
-
 def step_c(model: mujoco.MjModel, states: StartStates) -> EngineOutput:
-    """One physics step of the scalar engine (``MujocoEngine``, zero warm start)."""
-    engine = engines.MujocoEngine(model, substeps=1)
-    physics = jnp.asarray(c_physics_state(model, states.qpos, states.qvel), jnp.float32)
-    start = engines.CState(physics=physics, sensordata=jnp.zeros((len(physics), model.nsensordata)))
-    stepped = engine.step(start, jnp.asarray(states.ctrl, jnp.float32))
-    sensors = jax.device_get(engine.sensors(stepped))
-    return EngineOutput(*(np.asarray(x, np.float64) for x in sensors))
+    """One physics step of MuJoCo C in float64 from a zero warm start, as the C engines step
+    (they start every control period cold), with outputs kept in float64."""
+    data = mujoco.MjData(model)
+    out = EngineOutput(np.empty_like(states.qpos), np.empty_like(states.qvel),
+                       np.empty((len(states.qpos), model.nsensordata)))
+    for b in range(len(states.qpos)):
+        mujoco.mj_resetData(model, data)
+        data.qpos[:], data.qvel[:], data.ctrl[:] = states.qpos[b], states.qvel[b], states.ctrl[b]
+        mujoco.mj_step(model, data)
+        out.qpos[b], out.qvel[b], out.sensordata[b] = data.qpos, data.qvel, data.sensordata
+    return out
 
 
-def step_mjx(model: mujoco.MjModel, qpos0: np.ndarray, states: StartStates) -> tuple[EngineOutput, np.ndarray]:
-    """One physics step of ``MjxEngine`` from a zero warm start, as the C engines start, and
-    the number of penetrating contacts per sole (states, soles) MJX found at the start."""
+def step_mjx(model: mujoco.MjModel, states: StartStates) -> tuple[EngineOutput, np.ndarray]:
+    """One physics step of ``MjxEngine`` from a zero warm start, in the precision JAX is set
+    to, and the number of penetrating contacts per foot (states, feet) MJX found at the start."""
     engine = engines.MjxEngine(model, substeps=1)
+    dtype = jnp.zeros(()).dtype  # float64 under jax.enable_x64
     batch = len(states.qpos)
     # mjx.make_data, not engine.init: its mjx.forward would be one more slow compile, and
     # the step computes everything from qpos, qvel and ctrl anyway.
     blank = engine._mjx.make_data(model, impl="jax")
     start = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), blank)
-    start = start.replace(qpos=jnp.asarray(states.qpos, jnp.float32),
-                          qvel=jnp.asarray(states.qvel, jnp.float32),
-                          qacc_warmstart=jnp.zeros((batch, model.nv), jnp.float32))
-    stepped = jax.jit(engine.step)(start, jnp.asarray(states.ctrl, jnp.float32))
+    start = start.replace(qpos=jnp.asarray(states.qpos, dtype), qvel=jnp.asarray(states.qvel, dtype),
+                          qacc_warmstart=jnp.zeros((batch, model.nv), dtype))
+    stepped = jax.jit(engine.step)(start, jnp.asarray(states.ctrl, dtype))
     contact = stepped._impl.contact  # MJX's contacts of this step (at the starting state)
     geom, dist = np.asarray(contact.geom), np.asarray(contact.dist)
-    counts = np.stack([((geom[..., 1] == sole) & (dist < 0)).sum(axis=-1) for sole in sole_ids(model)], axis=-1)
+    counts = np.stack([(np.isin(geom, points).any(axis=-1) & (dist < 0)).sum(axis=-1)
+                       for points in foot_contact_geoms(model)], axis=-1)
     sensors = jax.device_get(engine.sensors(stepped))
     return EngineOutput(*(np.asarray(x, np.float64) for x in sensors)), counts
 
 
-def sole_ids(model: mujoco.MjModel) -> list[int]:
-    return [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) for name in SOLE_GEOMS]
+def foot_contact_geoms(model: mujoco.MjModel) -> list[np.ndarray]:
+    """Per foot, the geoms that collide (the sole's corner spheres)."""
+    out = []
+    for name in FEET:
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+        out.append(np.flatnonzero((model.geom_bodyid == body) & (model.geom_contype != 0)))
+    return out
 
 
 def c_contact_counts(model: mujoco.MjModel, states: StartStates) -> np.ndarray:
-    """Penetrating contacts per sole (states, soles) that MuJoCo C finds at each state."""
+    """Penetrating contacts per foot (states, feet) that MuJoCo C finds at each state."""
     data = mujoco.MjData(model)
-    soles = sole_ids(model)
-    counts = np.zeros((len(states.qpos), len(soles)), int)
+    feet = foot_contact_geoms(model)
+    counts = np.zeros((len(states.qpos), len(feet)), int)
     for b in range(len(states.qpos)):
         data.qpos[:], data.qvel[:] = states.qpos[b], states.qvel[b]
         mujoco.mj_forward(model, data)
         for k in range(data.ncon):
             contact = data.contact[k]
-            if contact.dist < 0 and contact.geom[1] in soles:
-                counts[b, soles.index(contact.geom[1])] += 1
+            for f, points in enumerate(feet):
+                counts[b, f] += contact.dist < 0 and bool(np.isin(contact.geom, points).any())
     return counts
 
 
 class OneStepComparison(NamedTuple):
     states: StartStates
     c: EngineOutput
-    mjx: EngineOutput
-    same_contacts: np.ndarray   # (states,) bool: MJX and C found the same contacts per sole
-    in_contact: np.ndarray      # (states,) bool: some sole touches the floor
+    mjx: EngineOutput            # float32, as the engine runs
+    mjx_float64: EngineOutput
+    c_contacts: np.ndarray       # (states, feet) penetrating contact points
+    mjx_contacts: np.ndarray
 
 
 @pytest.fixture(scope="module")
 def one_step(mujoco_sim) -> OneStepComparison:
     model = mujoco_sim.model
     states = perturbed_walking_states(mujoco_sim, ONE_STEP_STATES, SEED)
-    c = step_c(model, states)
-    mjx, mjx_counts = step_mjx(model, mujoco_sim.qpos0, states)
-    c_counts = c_contact_counts(model, states)
-    return OneStepComparison(states, c, mjx, same_contacts=np.all(mjx_counts == c_counts, axis=1),
-                             in_contact=c_counts.sum(axis=1) > 0)
+    mjx, mjx_contacts = step_mjx(model, states)
+    with jax.enable_x64(True):
+        mjx_float64, _ = step_mjx(model, states)
+    return OneStepComparison(states, step_c(model, states), mjx, mjx_float64,
+                             c_contact_counts(model, states), mjx_contacts)
 
 
-def velocity_change_error(comparison: OneStepComparison) -> np.ndarray:
+def velocity_change_error(comparison: OneStepComparison, mjx: EngineOutput) -> np.ndarray:
     """Per state: |qvel_mjx - qvel_c| / |qvel_c - qvel_start|, the error relative to the
     velocity change of the step, i.e. to the step's acceleration (norms over all dofs)."""
     change = np.linalg.norm(comparison.c.qvel - comparison.states.qvel, axis=1)
-    return np.linalg.norm(comparison.mjx.qvel - comparison.c.qvel, axis=1) / change
+    return np.linalg.norm(mjx.qvel - comparison.c.qvel, axis=1) / change
 
 
 def touch_error(comparison: OneStepComparison, layout: Layout) -> np.ndarray:
-    """Per state: the largest sole-force difference, in units of the robot's weight."""
+    """Per state: the largest sole-force difference, relative to the larger of C's force and
+    the robot's weight m g = 66 N."""
     touch = [layout.left_touch, layout.right_touch]
-    difference = comparison.mjx.sensordata[:, touch] - comparison.c.sensordata[:, touch]
-    return np.abs(difference).max(axis=1) / layout.weight
+    c = comparison.c.sensordata[:, touch]
+    difference = np.abs(comparison.mjx.sensordata[:, touch] - c)
+    return (difference / np.maximum(np.abs(c), layout.weight)).max(axis=1)
 
 
 def read_sensor_error(comparison: OneStepComparison, layout: Layout) -> np.ndarray:
@@ -226,103 +218,84 @@ def read_sensor_error(comparison: OneStepComparison, layout: Layout) -> np.ndarr
 
 
 def test_sampled_states_cover_walking_contacts(one_step):
-    """The sample is of walking: most states have a sole on the floor, enough of them with the
-    same contacts in both engines for the tight comparison to mean something, and some where
-    MJX's contact approximation is exercised."""
-    assert one_step.in_contact.mean() > 0.8
-    assert (one_step.same_contacts & one_step.in_contact).mean() >= MIN_SAME_CONTACT_FRACTION
-    assert (~one_step.same_contacts).any()
+    """The sample is of walking: most states have a sole on the floor, some on one or two
+    corners (a heel strike, a toe-off, a sole rolling), some on three or more (a sole flat,
+    or both feet down)."""
+    points = one_step.c_contacts.sum(axis=1)
+    assert (points > 0).mean() > 0.8
+    assert ((points >= 1) & (points <= 2)).mean() >= 0.2
+    assert (points >= 3).mean() >= 0.05
 
 
-def test_one_step_agrees_where_contacts_agree(one_step, mujoco_sim):
-    """One 4 ms physics step from 64 perturbed walking states, MJX (float32) vs MuJoCo C
-    (float64), both from a zero solver warm start, on the states where both find the same
-    penetrating sole corners.
+def test_engines_find_the_same_contacts(one_step):
+    """Sphere against plane is one contact point, computed alike by both engines: in every
+    state each foot has the same penetrating points in MJX and in C."""
+    np.testing.assert_array_equal(one_step.mjx_contacts, one_step.c_contacts)
 
-    At least 90% of these states (measured: all 45 here, 97% of 176 in a sample of 256)
-    agree to float32 arithmetic: qpos within 2e-6 (a step moves it by 1e-3 to 1.5e-2), the
-    velocity change of the step within 2e-4 of its size (3 to 8 in norm; this is the error of
-    the acceleration, contact forces included), the sole forces within 5e-4 of the weight
-    m g = 66 N.  Measured maxima here: 4.1e-7, 3.8e-5, 6.5e-5 (5 to 8 times smaller).  The
-    rest take another branch of the unconverged 2-iteration Newton solver (its warm-start
-    choice or line search) and still agree within 10% of the velocity change (measured at most
-    5.1% in the sample of 256), 0.05 m g (0.022) and 1e-3 in qpos (5e-4).  Gyro and
-    orientation are read at the start of the step: 5e-6 (measured 7e-7).
-    """
-    same = one_step.same_contacts
-    c, x = one_step.c, one_step.mjx
-    velocity = velocity_change_error(one_step)[same]
-    touch = touch_error(one_step, mujoco_sim.layout)[same]
-    qpos = np.abs(x.qpos - c.qpos).max(axis=1)[same]
-    tight = (velocity <= TIGHT_VELOCITY_CHANGE_REL) & (touch <= TIGHT_TOUCH_REL) & (qpos <= TIGHT_QPOS_ATOL)
-    assert tight.mean() >= MIN_TIGHT_FRACTION, f"{tight.sum()} of {tight.size} states agree to float32 rounding"
-    assert velocity.max() <= SAME_CONTACTS_VELOCITY_CHANGE_REL
-    assert touch.max() <= SAME_CONTACTS_TOUCH_REL
-    assert qpos.max() <= SAME_CONTACTS_QPOS_ATOL
+
+def test_mjx_in_float64_computes_cs_step(one_step):
+    """MJX run in float64 is C's algorithm: the step's velocity change agrees within 1e-9 of
+    its size in at least 95% of the states (measured: all but one, median 6e-16)."""
+    error = velocity_change_error(one_step, one_step.mjx_float64)
+    assert (error <= FLOAT64_VELOCITY_CHANGE_REL).mean() >= MIN_FLOAT64_FRACTION, np.sort(error)[-5:]
+
+
+def test_one_step_agrees_to_float32_rounding(one_step, mujoco_sim):
+    """One 4 ms step from 100 perturbed walking states, MJX (float32) against C (float64),
+    both from a zero warm start.  At least 95% of the states agree within the float32
+    tolerances (module constants: the velocity change within 4e-4 of its size, sole forces
+    within 4e-4 of the larger of the force and m g, qpos within 2e-5), and none is off by more
+    than 10 times them.  Gyro and orientation are read at the start of the step: 5e-6."""
+    velocity = velocity_change_error(one_step, one_step.mjx) / FLOAT32_VELOCITY_CHANGE_REL
+    touch = touch_error(one_step, mujoco_sim.layout) / FLOAT32_TOUCH_REL
+    qpos = np.abs(one_step.mjx.qpos - one_step.c.qpos).max(axis=1) / FLOAT32_QPOS_ATOL
+    worst = np.maximum.reduce([velocity, touch, qpos])  # in units of the tolerances
+    assert (worst <= 1).mean() >= MIN_FLOAT32_FRACTION, f"{(worst <= 1).sum()} of {worst.size} within tolerance"
+    assert worst.max() <= FLOAT32_OUTLIER_FACTOR, f"worst state at {worst.max():.1f} times the tolerances"
     assert read_sensor_error(one_step, mujoco_sim.layout).max() <= SENSOR_READ_ATOL
-
-
-def test_one_step_is_close_where_mjx_drops_contact_points(one_step):
-    """Where MJX keeps fewer sole corners than C (its 1 mm contact skin), the step differs in
-    physics, not in rounding: the velocity change differs by less than its own size
-    (measured at most 52% here, 74% over 256 states) and qpos by less than 0.03 (measured
-    0.006, 0.013: a velocity error of 3 rad/s for 4 ms).  The sole forces may move by 3 m g from one
-    corner to another and are not compared here; the rollout and the walks judge the effect."""
-    other = ~one_step.same_contacts
-    assert velocity_change_error(one_step)[other].max() < OTHER_CONTACTS_VELOCITY_CHANGE_REL
-    np.testing.assert_allclose(one_step.mjx.qpos[other], one_step.c.qpos[other], rtol=0,
-                               atol=OTHER_CONTACTS_QPOS_ATOL)
 
 
 def test_short_rollout_agrees_in_pelvis_height_and_forward_position(session_walk_mujoco, session_walk_mjx,
                                                                     mujoco_sim):
     """The hand-designed controller (a_5 = d theta_roll/dt) from standing on both engines:
-    the first 2 s of the session's 20 s walks.  The pelvis stands at 0.283 m and swings about
-    15 mm within each step; the robot walks 0.145 m in 2 s.
-
-    * First second: height within 3 mm, forward position within 10 mm (measured 1.2, 4.4 mm).
-    * First 2 s: height within 10 mm, RMS 2.5 mm, forward position within 30 mm (measured 4.7
-      mm, 0.9 mm, 16 mm).  The trajectories part slowly as MJX's contact approximation shifts
-      a heel strike by a few control periods; over 20 s the speeds differ by 6% (test_walk.py).
-    """
+    the first 2 s of the session's 20 s walks.  The pelvis stays within 2 mm in height and in
+    forward position: C against itself, started with every joint moved by 1e-6 rad (a
+    float32-sized change; 16 starts), parts by up to 1.9 mm in height and 1.1 mm forward
+    over these 2 s (docs/engines.md).  Measured MJX against C: 0.09 mm and 0.12 mm."""
     c, x = session_walk_mujoco.trace, session_walk_mjx.trace
-    first = round(1.0 / mujoco_sim.control_dt)
     steps = round(ROLLOUT_SECONDS / mujoco_sim.control_dt)
     assert not c.fallen[HAND, :steps].any() and not x.fallen[HAND, :steps].any()
     height = x.height[HAND, :steps] - c.height[HAND, :steps]
     forward = x.forward_position[HAND, :steps] - c.forward_position[HAND, :steps]
-    assert np.abs(height[:first]).max() <= FIRST_SECOND_HEIGHT_ATOL
-    assert np.abs(forward[:first]).max() <= FIRST_SECOND_FORWARD_ATOL
-    assert np.abs(height).max() <= ROLLOUT_HEIGHT_ATOL
-    assert np.sqrt(np.mean(height**2)) <= ROLLOUT_HEIGHT_RMS
-    assert np.abs(forward).max() <= ROLLOUT_FORWARD_ATOL
+    assert np.abs(height).max() <= ROLLOUT_ATOL
+    assert np.abs(forward).max() <= ROLLOUT_ATOL
 
 
-def test_learned_policy_walks_on_both_engines(walks_mujoco, walks_mjx):
-    """The policy stored in tests/data (learned on the native C engine) walks 20 s without a
-    fall on both engines, forward, at mean speeds (after 2 s of settling) within 25% of each
-    other: measured C 0.062 m/s, MJX 0.053 m/s.  The issue's 10% is the next test."""
+def test_hand_designed_gait_speed_within_three_percent(walks_mujoco, walks_mjx):
+    """The hand-designed gait walks 20 s on both engines without a fall, at mean speeds
+    within 3% (measured C 0.0802, MJX 0.0803 m/s)."""
+    c, x = walks_mujoco[HAND], walks_mjx[HAND]
+    assert not c.fell and not x.fell
+    assert abs(x.mean_vx - c.mean_vx) <= HAND_SPEED_REL * c.mean_vx
+
+
+def test_learned_policy_speed_within_five_percent(walks_mujoco, walks_mjx):
+    """The policy stored in tests/data (learned on the native C engine) walks 20 s on both
+    engines without a fall, at mean speeds within 5% (measured C 0.0613, MJX 0.0604 m/s)."""
     c, x = walks_mujoco[LEARNED], walks_mjx[LEARNED]
     assert not c.fell and not x.fell
-    assert c.mean_vx > 0.03 and x.mean_vx > 0.03
-    assert abs(x.mean_vx - c.mean_vx) / c.mean_vx < LEARNED_SPEED_REL_MEASURED_BOUND
+    assert c.mean_vx > 0.03
+    assert abs(x.mean_vx - c.mean_vx) <= LEARNED_SPEED_REL * c.mean_vx
 
 
-@pytest.mark.xfail(strict=True, reason="measured: MJX walks the stored learned policy 15% slower than C "
-                   "(0.053 vs 0.062 m/s); C's own spread is +-2%, so this is MJX's contact model "
-                   "(docs/engines.md)")
-def test_learned_policy_speed_within_ten_percent(walks_mujoco, walks_mjx):
-    """Issue 4's criterion: the same learned policy walks at speeds within 10% on both engines.
-    The hand-designed controller meets it (6%, test_walk.py); this policy, with its weaker
-    propulsive feedback, does not: strict, so that a fix shows up as an unexpected pass."""
-    c, x = walks_mujoco[LEARNED], walks_mjx[LEARNED]
-    assert abs(x.mean_vx - c.mean_vx) / c.mean_vx < WALKING_SPEED_REL
-
-
-def test_stored_policy_record_is_consistent():
-    """The stored policy says how it was made, and it succeeded."""
+def test_stored_policy_was_learned_on_this_model():
+    """The stored policy says how and at which commit it was made, it succeeded, and it was
+    learned on the robot model the tests walk (regenerate it with
+    tests/data/make_learned_policy.py when the model changes)."""
     record = load_learned_policy()
     assert record["command"].startswith("mjxcpg learn --k-s 10 --seed 1 --engine native")
+    assert record["model_sha256"] == hashlib.sha256(MODEL_PATH.read_bytes()).hexdigest(), (
+        f"tests/data policy was learned at {record['git_commit']} on another model")
     assert record["trials_to_success"] is not None and record["trials_to_success"] > 0
     assert len(record["policy_mean_weights"]) == record["basis_grid"] ** 2
     assert np.all(np.isfinite(record["policy_mean_weights"]))

@@ -35,9 +35,11 @@ def test_hardware_model_differs_from_nominal_as_documented():
     assert np.all(np.abs(inertia - 1) <= m.inertia_spread) and np.std(inertia) > 0.02
     np.testing.assert_allclose(inertia, inertia[:, :1] * np.ones(3))  # one factor per body
     assert hw.body_subtreemass[1] == pytest.approx(hw.body_mass[1:].sum())
-    for name in ("floor", "l_sole", "r_sole"):
+    contact_points = [f"{side}_sole_{end}_{edge}" for side in "lr" for end in ("toe", "heel")
+                      for edge in ("left", "right")]
+    for name in ["floor"] + contact_points:  # every geom that collides
         geom = mujoco.mj_name2id(hw, mujoco.mjtObj.mjOBJ_GEOM, name)
-        assert hw.geom_friction[geom, 0] == pytest.approx(0.7)
+        assert geom >= 0 and hw.geom_friction[geom, 0] == pytest.approx(0.7)
     np.testing.assert_allclose(hw.actuator_gainprm[:, 0], 120.0)
     np.testing.assert_allclose(hw.actuator_biasprm[:, 1], -120.0)
     hinge = nominal.jnt_dofadr[nominal.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]

@@ -5,7 +5,7 @@ has without learning one first.  This script learns it with
 
     mjxcpg learn --k-s 10 --seed 1 --engine native --trials 200
 
-(about 35 trials, a minute or two on a 2-core CPU) and stores the policy mean's NGnet
+(tens of trials, under a minute on a 2-core CPU) and stores the policy mean's NGnet
 weights w^mu (eq 25, 225 numbers) with the settings needed to read them back.  Run it from
 the repository root:
 
@@ -18,7 +18,9 @@ The learner's state is otherwise discarded: walking with the policy's mean (no n
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -27,6 +29,7 @@ import mujoco
 import numpy as np
 
 from mjxcpg.cli import main as mjxcpg_main
+from mjxcpg.robot import MODEL_PATH
 from mjxcpg.runs import load_run
 
 POLICY_PATH = Path(__file__).resolve().parent / "learned_policy_ks10_seed1.json"
@@ -49,12 +52,33 @@ def learn_and_export(run_dir: Path, out: Path = POLICY_PATH) -> dict:
         "trials_to_success": learned["trials_to_success"],
         "mean_vx_on_learning_engine": learned["mean_vx"],
         "mujoco_version": mujoco.__version__,
+        "model_sha256": model_fingerprint(),
+        "git_commit": git_commit(),
         "basis_grid": spec.basis_grid, "basis_width": spec.basis_width,
         "a_max": task.learner.a_max,
         "policy_mean_weights": [float(w) for w in np.asarray(state.learners.weights.mean[0])],
     }
     out.write_text(json.dumps(record, indent=1) + "\n")
     return record
+
+
+def model_fingerprint(path: Path = MODEL_PATH) -> str:
+    """SHA-256 of the robot's MJCF: the tests refuse a policy learned on another model."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def git_commit() -> str | None:
+    """The commit the policy was learned at (with ``+dirty`` for uncommitted changes), or
+    None outside a git checkout."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
+                                text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return commit + ("+dirty" if dirty else "")
 
 
 def main(argv: list[str] | None = None) -> int:
