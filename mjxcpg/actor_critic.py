@@ -39,7 +39,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjxcpg.policy import log_policy_gradients
+from mjxcpg.policy import log_policy_gradients, noise_decay
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +68,7 @@ class LearnerParams:
     kappa_mu: float = 1.0       # policy-mean trace time constant, eq (21)
     kappa_sigma: float = 0.1    # policy-std trace time constant, eq (21)
     a_max: float = 1.0          # feedback amplitude of eq (10) (not given in the paper)
+    noise_correlation_s: float = 0.0  # tau_n of the exploration noise; 0: white, as eq (12)
     rate_scale: float = 0.03    # multiplies alpha, beta_mu, beta_sigma (see above)
     init_w_sigma: float = 0.0   # initial w^sigma: sigma = 0.5
     max_abs_td_error: float | None = None
@@ -162,13 +163,18 @@ def learner_update(params: LearnerParams, weights: Weights, traces: Traces,
 
 
 def accumulate_traces(params: LearnerParams, traces: Traces, b: jax.Array, v: jax.Array,
-                      mean: jax.Array, std: jax.Array, dt: float) -> Traces:
+                      mean: jax.Array, std: jax.Array, dt: float,
+                      previous_noise: jax.Array | float = 0.0,
+                      previous_b: jax.Array | None = None) -> Traces:
     """Eq (18) with dV/dw^c = b (eq 23) and eq (21) with the gradients of ln pi (eq 11).
 
-    ``b`` is the basis at the current input, ``v`` the sample drawn there (eq 12) from
-    N(``mean``, ``std``^2) with mean = w^mu . b and std = sigmoid(w^sigma).
+    ``b`` is the basis at the current input, ``v`` the sample drawn there (eq 12) as
+    mean + std n with mean = w^mu . b, std = sigmoid(w^sigma) and n the exploration noise;
+    with correlated noise (``params.noise_correlation_s`` > 0) the gradient also needs the
+    last period's noise n_{t-1} and basis b_{t-1} (``policy.log_policy_gradients``).
     """
-    grad_mean, grad_sigma = log_policy_gradients(v, mean, std, b)
+    decay = noise_decay(params.noise_correlation_s, dt)
+    grad_mean, grad_sigma = log_policy_gradients(v, mean, std, b, decay, previous_noise, previous_b)
     return Traces(
         critic=decay_trace(traces.critic, b, dt, params.kappa_c),
         mean=decay_trace(traces.mean, grad_mean, dt, params.kappa_mu),

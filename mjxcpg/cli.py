@@ -161,6 +161,31 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
             "wall_s": summary["wall_s"], "engine": summary["engine"]}
 
 
+def cmd_controls(args: argparse.Namespace) -> dict:
+    from mjxcpg import controls
+
+    run_dir = Path(args.run)
+    if not (run_dir / "summary.json").is_file():
+        raise UserError(f"{run_dir} holds no finished run (no summary.json); run the sweep first")
+    walls = controls.run_controls(run_dir, args.only or tuple(controls.CONTROLS),
+                                  trials=args.trials or controls.DEFAULT_TRIALS,
+                                  engine=args.engine, resume=args.resume, force=args.force,
+                                  progress=not args.quiet)
+    print((run_dir / "table1.md").read_text())
+    return {"out": str(run_dir / "controls"), "wall_s": walls}
+
+
+def cmd_transfer(args: argparse.Namespace) -> dict:
+    from mjxcpg import transfer
+
+    result = transfer.walk_on_engines(Path(args.run), args.seconds)
+    for r in result["learners"]:
+        print(f"learner {r['learner']:3d}  k_s {r['k_s']:4g}  C {r['mean_vx_c']:.4f}  MJX {r['mean_vx_mjx']:.4f}"
+              f"  MJX/C {r['mjx_over_c']:.3f}" + ("  fell on C" if r["fell_c"] else "")
+              + ("  fell on MJX" if r["fell_mjx"] else ""))
+    return {k: v for k, v in result.items() if k != "learners"} | {"out": str(Path(args.run) / "transfer.json")}
+
+
 def _nonnegative_int(text: str) -> int:
     value = int(text)
     if value < 0:
@@ -278,6 +303,26 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--config", default="paper", help="a name in configs/ or a .toml/.json path")
     run_options(sweep)
     sweep.set_defaults(handler=cmd_sweep)
+
+    ctl = sub.add_parser("controls", help="the run's protocol without learning, without a_5, and with "
+                         "the hand-designed feedback, beside its Table 1")
+    ctl.add_argument("--run", required=True, help="a finished sweep's run directory")
+    ctl.add_argument("--trials", type=_positive_int, default=None,
+                     help="trial budget of each control learner (default 400, at most the run's)")
+    ctl.add_argument("--only", nargs="+", choices=("learning_off", "learning_off_min_sigma", "zero_feedback",
+                                                   "hand_feedback"), help="run only these controls")
+    ctl.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
+    ctl.add_argument("--resume", action="store_true", help="continue controls already started")
+    ctl.add_argument("--force", action="store_true", help="replace controls already run")
+    ctl.add_argument("--quiet", action="store_true", help="no progress bar")
+    ctl.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    ctl.set_defaults(handler=cmd_controls)
+
+    tr = sub.add_parser("transfer", help="walk a run's final policies on MuJoCo C and on MJX")
+    tr.add_argument("--run", required=True, help="a finished run directory")
+    tr.add_argument("--seconds", type=_positive_seconds, default=20.0)
+    tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    tr.set_defaults(handler=cmd_transfer)
 
     rend = sub.add_parser("render", help="filmstrip PNG and GIF of a learned gait (headless OpenGL)")
     rend.add_argument("--run", required=True, help="run directory")

@@ -15,6 +15,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
+from mjxcpg.learner import ACTORS
 from mjxcpg.train import RunSpec
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
@@ -75,6 +76,9 @@ def validate(spec: RunSpec) -> RunSpec:
         ("trial.hand_seconds", 0 <= spec.trial.hand_seconds[0] <= spec.trial.hand_seconds[1]
          < spec.trial.trial_seconds, "must be 0 <= low <= high < trial_seconds"),
         ("trial.velocity_filter_s", spec.trial.velocity_filter_s > 0, "must be positive"),
+        ("trial.trials_after_success", spec.trial.trials_after_success >= 0, "must be non-negative"),
+        ("trial.actor", spec.trial.actor in ACTORS, f"must be one of {', '.join(ACTORS)}"),
+        ("learner.noise_correlation_s", spec.learner.noise_correlation_s >= 0, "must be non-negative"),
         ("learner.tau", spec.learner.tau > 0, "must be positive"),
         ("learner.rate_scale", spec.learner.rate_scale >= 0, "must be non-negative"),
         ("learner.a_max", spec.learner.a_max > 0, "must be positive"),

@@ -20,7 +20,7 @@ A trial ends at a fall (the robot is down, or its physics diverged) or after 20 
 fall the TD error is delta = r_fall - V(x(t - dt)), Doya's (2000) terminal condition: the
 value just before the fall is pulled toward the fall's reward (-1), with no future after it.
 Learning has succeeded after ``success_streak`` successive trials without a fall; the policy
-is frozen from then on.
+goes on learning for ``TrialParams.trials_after_success`` more trials, then is frozen.
 """
 
 from __future__ import annotations
@@ -39,6 +39,9 @@ from mjxcpg.robot import Layout, Observation, Sensors, observe
 from mjxcpg.walk import has_fallen
 
 
+ACTORS = ("policy", "zero", "hand")  # TrialParams.actor
+
+
 @dataclasses.dataclass(frozen=True)
 class TrialParams:
     """Reward (eq 27) and trial protocol (Experiments section)."""
@@ -51,6 +54,12 @@ class TrialParams:
     velocity_filter_s: float = 0.5        # time constant of the v_x low-pass filter
     success_streak: int = 20
     max_trials: int = 1000
+    # Trials the learner goes on learning after it first meets the success criterion (trials
+    # to success still counts the first streak); 0 freezes the policy at success.
+    trials_after_success: int = 0
+    # What acts after the hand-over: "policy" (the learner), or a control that does not learn:
+    # "zero" (a_5 = 0) or "hand" (the hand-designed feedback throughout).
+    actor: str = "policy"
 
 
 class Bookkeeping(NamedTuple):
@@ -63,6 +72,13 @@ class Bookkeeping(NamedTuple):
     trials_to_success: jax.Array  # -1 until the success criterion is met
     returns: jax.Array            # (max_trials,) accumulated reward per trial
     falls: jax.Array              # (max_trials,) whether each trial ended in a fall
+    # Diagnostics of the part of each trial after the hand-over (not used by the learner):
+    acting_steps: jax.Array       # control periods acted in the current trial
+    distance: jax.Array           # forward distance walked in them (m)
+    abs_a5_sum: jax.Array         # sum of |a_5| over them
+    velocities: jax.Array         # (max_trials,) mean forward velocity (m/s)
+    mean_abs_a5: jax.Array        # (max_trials,) mean |a_5|
+    sigmas: jax.Array             # (max_trials,) the policy's sigma at the trial's end
 
 
 class LearnerState(NamedTuple):
@@ -74,6 +90,7 @@ class LearnerState(NamedTuple):
     traces: ac.Traces
     previous_basis: jax.Array     # b(x(t - dt)); V(t - dt) is re-evaluated with current weights
     has_previous: jax.Array
+    noise: jax.Array              # the exploration noise n(t - dt) of the last action (0 before the first)
     book: Bookkeeping
     estimate: estimator.EstimatorState | None = None  # only with Task.estimator (no leaves otherwise)
 
@@ -142,11 +159,13 @@ def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
         k_s=jnp.float32(k_s), key=key, period=jnp.int32(0), cpg=cpg.init_state(),
         weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k),
         previous_basis=jnp.zeros(k, jnp.float32), has_previous=jnp.bool_(False),
-        book=Bookkeeping(
+        noise=jnp.float32(0), book=Bookkeeping(
             trial=jnp.int32(0), step=jnp.int32(0), handover=_handover_step(task, jax.random.uniform(sub)),
             trial_return=jnp.float32(0), filtered_vx=jnp.float32(0), streak=jnp.int32(0),
             trials_to_success=jnp.int32(-1), returns=jnp.zeros(n, jnp.float32),
-            falls=jnp.zeros(n, bool)),
+            falls=jnp.zeros(n, bool), acting_steps=jnp.int32(0), distance=jnp.float32(0),
+            abs_a5_sum=jnp.float32(0), velocities=jnp.zeros(n, jnp.float32),
+            mean_abs_a5=jnp.zeros(n, jnp.float32), sigmas=jnp.zeros(n, jnp.float32)),
         estimate=_initial_estimate(task),
     )
 
@@ -167,8 +186,11 @@ def measured_inputs(task: Task, state: LearnerState, sensors: Sensors, obs: Obse
 
 
 def is_done(task: Task, state: LearnerState) -> jax.Array:
-    """Succeeded, or out of trials."""
-    return (state.book.trials_to_success >= 0) | (state.book.trial >= task.trial.max_trials)
+    """Succeeded and ``trials_after_success`` trials past it, or out of trials."""
+    book = state.book
+    learned_past_success = (book.trials_to_success >= 0) & (
+        book.trial >= book.trials_to_success + task.trial.trials_after_success)
+    return learned_past_success | (book.trial >= task.trial.max_trials)
 
 
 def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: jax.Array,
@@ -189,16 +211,20 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     delta = jnp.where(
         fell, ac.terminal_td_error(task.trial.fall_reward, previous_value),
         ac.td_error(r, ngnet.ngnet_value(state.weights.critic, b), previous_value, task.dt, p.tau))
-    update = acting & state.has_previous & ~frozen
+    update = acting & state.has_previous & ~frozen & (task.trial.actor == "policy")
     weights = tree_where(update, ac.learner_update(p, state.weights, state.traces, delta, task.dt),
                          state.weights)
 
     mean = ngnet.ngnet_value(weights.mean, b)
     std = ngnet.policy_std(weights.sigma)
-    v = policy.sample_action(mean, std, draws.noise)
-    a5 = jnp.where(acting, policy.feedback_action(v, p.a_max), hand_feedback(task.controller, obs))
-    traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt),
-                        state.traces)
+    noise = policy.exploration_noise(state.noise, draws.noise, policy.noise_decay(p.noise_correlation_s, task.dt))
+    v = policy.sample_action(mean, std, noise)
+    hand = hand_feedback(task.controller, obs)
+    after_handover = {"policy": policy.feedback_action(v, p.a_max), "zero": jnp.zeros_like(hand), "hand": hand}
+    a5 = jnp.where(acting, after_handover[task.trial.actor], hand)
+    previous_b = jnp.where(state.has_previous, state.previous_basis, 0.0)  # b_{t-1}, 0 at the first action
+    traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt,
+                                                     state.noise, previous_b), state.traces)
     cpg_state, ctrl = control_step(task.controller, task.layout, state.cpg, obs, a5)
 
     trial_return = book.trial_return + jnp.where(
@@ -208,6 +234,13 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     index = jnp.minimum(book.trial, task.trial.max_trials - 1)
     streak = jnp.where(ended, jnp.where(fell, 0, book.streak + 1), book.streak)
     newly_succeeded = record & (streak >= task.trial.success_streak) & (book.trials_to_success < 0)
+    acting_steps = book.acting_steps + acting.astype(jnp.int32)
+    distance = book.distance + jnp.where(acting, jnp.nan_to_num(obs.forward_velocity) * task.dt, 0.0)
+    abs_a5_sum = book.abs_a5_sum + jnp.where(acting, jnp.abs(a5), 0.0)
+    acted = jnp.maximum(acting_steps, 1)
+
+    def per_trial(history: jax.Array, value: jax.Array) -> jax.Array:
+        return history.at[index].set(jnp.where(record, value, history[index]))
     book = Bookkeeping(
         trial=book.trial + record.astype(jnp.int32),
         step=jnp.where(ended, 0, book.step + 1),
@@ -216,15 +249,22 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
         filtered_vx=jnp.where(ended, 0.0, filtered_vx),
         streak=streak,
         trials_to_success=jnp.where(newly_succeeded, book.trial + 1, book.trials_to_success),
-        returns=book.returns.at[index].set(jnp.where(record, trial_return, book.returns[index])),
-        falls=book.falls.at[index].set(jnp.where(record, fell, book.falls[index])),
+        returns=per_trial(book.returns, trial_return),
+        falls=per_trial(book.falls, fell),
+        acting_steps=jnp.where(ended, 0, acting_steps),
+        distance=jnp.where(ended, 0.0, distance),
+        abs_a5_sum=jnp.where(ended, 0.0, abs_a5_sum),
+        velocities=per_trial(book.velocities, distance / (acted * task.dt)),
+        mean_abs_a5=per_trial(book.mean_abs_a5, abs_a5_sum / acted),
+        sigmas=per_trial(book.sigmas, ngnet.policy_std(weights.sigma)),
     )
     state = LearnerState(
         k_s=state.k_s, key=state.key, period=state.period + 1,
         cpg=tree_where(ended, cpg.init_state(), cpg_state),
         weights=weights,
         traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
-        previous_basis=b, has_previous=acting & ~ended, book=book,
+        previous_basis=b, has_previous=acting & ~ended,
+        noise=jnp.where(acting & ~ended, noise, 0.0), book=book,
         estimate=tree_where(ended, _initial_estimate(task), estimate_state),
     )
     return state, jnp.where(ended, home_ctrl, ctrl), ended
@@ -233,6 +273,16 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
 def home_ctrl(task: Task) -> jax.Array:
     """Servo targets of the standing pose that every trial starts from."""
     return joint_targets(task.controller, task.layout, jnp.zeros(6))
+
+
+def actor_feedback(task: Task):
+    """a_5 of what acts after the hand-over, without exploration noise: the learned policy's
+    mean (``policy_mean_feedback``), or a control's 0 or hand-designed feedback."""
+    if task.trial.actor == "zero":
+        return lambda obs, weights: jnp.zeros_like(obs.gyro[0])
+    if task.trial.actor == "hand":
+        return lambda obs, weights: hand_feedback(task.controller, obs)
+    return policy_mean_feedback(task)
 
 
 def policy_mean_feedback(task: Task):

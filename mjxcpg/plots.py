@@ -194,3 +194,35 @@ def push_impulses(rows: list[dict], path: Path) -> None:
     ax.set_title("Pushes on the pelvis at a left touchdown")
     ax.legend(fontsize=7)
     _save(fig, path)
+
+
+def diagnostics(results: list[dict], path: Path, window: int = 20) -> None:
+    """Per k_s, over trials: the median and the 10th-90th percentile band over learners of the
+    trial's mean velocity after the hand-over, the policy's sigma, the fall rate (running mean
+    over ``window`` trials) and the mean |a_5|."""
+    panels = (("velocities", "mean velocity after hand-over (m/s)"), ("sigmas", "sigma"),
+              ("falls", f"fall rate (running mean of {window})"), ("mean_abs_a5", "mean |a_5|"))
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True)
+    for k_s in sorted({r["k_s"] for r in results}):
+        group = [r for r in results if r["k_s"] == k_s and r["trials"] > 0]
+        if not group:
+            continue
+        length = max(r["trials"] for r in group)
+        for ax, (key, label) in zip(axes.ravel(), panels):
+            rows = np.full((len(group), length), np.nan)
+            for i, r in enumerate(group):
+                values = np.asarray(r[key], float)
+                if key == "falls":
+                    kernel = np.ones(min(window, len(values))) / min(window, len(values))
+                    values = np.convolve(values, kernel, mode="full")[:len(values)]
+                rows[i, :len(values)] = values
+            trial = np.arange(1, length + 1)
+            low, mid, high = np.nanpercentile(rows, [10, 50, 90], axis=0)
+            line, = ax.plot(trial, mid, lw=1, label=f"k_s={k_s:g}")
+            ax.fill_between(trial, low, high, color=line.get_color(), alpha=0.15, lw=0)
+            ax.set_ylabel(label)
+    for ax in axes[1]:
+        ax.set_xlabel("trial")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle("Learning diagnostics per k_s: median and 10-90th percentiles over learners")
+    _save(fig, path)

@@ -37,17 +37,49 @@ def log_policy(v: jax.Array, mean: jax.Array, std: jax.Array) -> jax.Array:
     return -_LOG_SQRT_2PI - jnp.log(std) - 0.5 * ((v - mean) / std) ** 2
 
 
-def log_policy_gradients(v: jax.Array, mean: jax.Array, std: jax.Array,
-                         b: jax.Array) -> tuple[jax.Array, jax.Array]:
+def noise_decay(correlation_s: float, dt: float) -> float:
+    """The per-period factor a = exp(-dt / tau_n) of ``exploration_noise``; 0 (white noise,
+    as eq 12 prints) when ``correlation_s`` is 0."""
+    return math.exp(-dt / correlation_s) if correlation_s > 0 else 0.0
+
+
+def exploration_noise(previous: jax.Array, innovation: jax.Array, decay: float) -> jax.Array:
+    """Eq (12)'s n(t), optionally correlated in time: n_t = a n_{t-1} + sqrt(1 - a^2) xi_t with
+    xi_t ~ N(0, 1), a unit-variance AR(1) process (an Ornstein-Uhlenbeck process with time
+    constant tau_n sampled every dt).  a = 0 gives the paper's white noise n_t = xi_t.
+
+    White noise redrawn every control period is low-passed by the CPG (tau = 0.1 s), so most
+    of it never reaches the legs; noise held over a fraction of a step does.
+    """
+    return decay * previous + math.sqrt(1.0 - decay**2) * innovation
+
+
+def log_policy_gradients(v: jax.Array, mean: jax.Array, std: jax.Array, b: jax.Array,
+                         decay: float = 0.0, previous_noise: jax.Array | float = 0.0,
+                         previous_b: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
     """Eq (21)'s d ln pi / dw for eq (11) with mu = w^mu . b (eq 25), sigma = sigmoid(w^sigma) (eq 26).
 
-    Returns ``(d ln pi / d w^mu, d ln pi / d w^sigma)`` of shapes (K,) and ():
+    Returns ``(d ln pi / d w^mu, d ln pi / d w^sigma)`` of shapes (K,) and ().  With white
+    noise (``decay`` = 0):
 
     * d ln pi / d w^mu_k = (v - mu) / sigma^2 * b_k;
     * d ln pi / d w^sigma = ((v - mu)^2 - sigma^2) / sigma^3 * sigma (1 - sigma),
       the last factor being d sigma / d w^sigma of the sigmoid.
+
+    With ``exploration_noise``'s AR(1) noise the action is Gaussian given the past:
+    v_t ~ N(mu_t + a (v_{t-1} - mu_{t-1}), (sigma s)^2), s = sqrt(1 - a^2), and this is the
+    gradient of that density's log, with xi = (n_t - a n_{t-1}) / s the innovation, n = (v - mu)
+    / sigma the noise (``previous_noise`` is n_{t-1}) and ``previous_b`` = b(x_{t-1}):
+
+    * d ln pi / d w^mu = xi / (sigma s) * (b_t - a b_{t-1});
+    * d ln pi / d w^sigma = (xi^2 - 1) / sigma * sigma (1 - sigma).
+
+    At a = 0 both reduce to the white-noise forms above.  ``previous_b`` None (the first
+    action of a trial, where n_{t-1} = 0) counts as b_{t-1} = 0.
     """
-    error = v - mean
-    grad_mean = (error / std**2) * b
-    grad_sigma = (error**2 - std**2) / std**3 * std * (1.0 - std)
+    scale = math.sqrt(1.0 - decay**2)
+    innovation = ((v - mean) / std - decay * previous_noise) / scale
+    basis_gradient = b if previous_b is None else b - decay * previous_b
+    grad_mean = innovation / (std * scale) * basis_gradient
+    grad_sigma = (innovation**2 - 1.0) / std * std * (1.0 - std)
     return grad_mean, grad_sigma

@@ -153,12 +153,8 @@ def check_learners(spec: train.RunSpec, learners) -> list[int]:
     return chosen
 
 
-def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal"):
-    """The spec, simulation, task and final state of a finished or interrupted run.
-
-    On ``robot="hardware"`` (see ``mjxcpg.hardware``) the learners are the checkpoint's and the
-    physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
-    """
+def read_config(out: Path) -> tuple[train.RunSpec, dict]:
+    """The spec of the run in ``out`` and its whole config.json record."""
     config_path = out / "config.json"
     if not out.is_dir():
         raise RunError(f"no run directory at {out}")
@@ -166,9 +162,18 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
         raise RunError(f"{out} has no config.json; not a run directory")
     try:
         record = json.loads(config_path.read_text())
-        spec = config.spec_from_dict(record["spec"])
+        return config.spec_from_dict(record["spec"]), record
     except (json.JSONDecodeError, KeyError, TypeError) as error:
         raise RunError(f"{config_path} is damaged: {error}") from None
+
+
+def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal"):
+    """The spec, simulation, task and final state of a finished or interrupted run.
+
+    On ``robot="hardware"`` (see ``mjxcpg.hardware``) the learners are the checkpoint's and the
+    physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
+    """
+    spec, record = read_config(out)
     manager = _manager(out)
     if manager.latest_step() is None:
         raise RunError(f"{out} has no checkpoint")

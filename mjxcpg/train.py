@@ -141,7 +141,9 @@ def compacted_rows(done: np.ndarray) -> np.ndarray | None:
 
 
 def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
-    """Per learner: k_s, seed, success, trials to success, per-trial returns and falls."""
+    """Per learner: k_s, seed, success, trials to success, and per trial: the return, whether
+    it fell, and after the hand-over the mean forward velocity, the mean |a_5| and the
+    policy's sigma at the trial's end."""
     book = jax.device_get(learners.book)
     out = []
     for i in range(spec.batch):
@@ -152,6 +154,9 @@ def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
             "trials_to_success": tts if tts >= 0 else None, "trials": n,
             "returns": [float(x) for x in book.returns[i][:n]],
             "falls": [bool(x) for x in book.falls[i][:n]],
+            "velocities": [float(x) for x in book.velocities[i][:n]],
+            "mean_abs_a5": [float(x) for x in book.mean_abs_a5[i][:n]],
+            "sigmas": [float(x) for x in book.sigmas[i][:n]],
         })
     return out
 

@@ -112,6 +112,52 @@ def test_log_policy_gradients_match_autodiff():
         np.testing.assert_allclose(closed_sigma, auto_sigma, rtol=1e-4, atol=1e-6)
 
 
+@functools.partial(jax.jit, static_argnums=6)
+def _correlated_gradients_both_ways(x, x_prev, v, v_prev, w_mean, w_sigma, decay):
+    """Closed form against autodiff of the AR(1) policy's conditional log-density, written
+    out here: v_t ~ N(mu_t + a (v_{t-1} - mu_{t-1}), (sigma sqrt(1 - a^2))^2)."""
+    def log_pi(w_mean, w_sigma):
+        mu = ngnet.ngnet_value(w_mean, ngnet.normalized_basis(BASIS, x))
+        mu_prev = ngnet.ngnet_value(w_mean, ngnet.normalized_basis(BASIS, x_prev))
+        std = ngnet.policy_std(w_sigma) * jnp.sqrt(1.0 - decay**2)
+        return jax.scipy.stats.norm.logpdf(v, mu + decay * (v_prev - mu_prev), std)
+
+    b, b_prev = ngnet.normalized_basis(BASIS, x), ngnet.normalized_basis(BASIS, x_prev)
+    mean, std = ngnet.ngnet_value(w_mean, b), ngnet.policy_std(w_sigma)
+    previous_noise = (v_prev - ngnet.ngnet_value(w_mean, b_prev)) / std
+    closed = policy.log_policy_gradients(v, mean, std, b, decay, previous_noise, b_prev)
+    return closed, jax.grad(log_pi, argnums=(0, 1))(w_mean, w_sigma)
+
+
+def test_correlated_noise_gradients_match_autodiff():
+    rng = np.random.default_rng(2)
+    for decay in (0.5, policy.noise_decay(0.2, 0.008)):
+        for _ in range(4):
+            x, x_prev = (jnp.asarray(rng.uniform(-2.0, 2.0, 2), jnp.float32) for _ in range(2))
+            w_mean = jnp.asarray(rng.normal(0.0, 1.0, NUM_BASIS), jnp.float32)
+            w_sigma = jnp.float32(rng.uniform(-2.0, 2.0))
+            v, v_prev = (jnp.float32(rng.normal(0.0, 1.5)) for _ in range(2))
+            (closed_mean, closed_sigma), (auto_mean, auto_sigma) = _correlated_gradients_both_ways(
+                x, x_prev, v, v_prev, w_mean, w_sigma, decay)
+            scale = float(jnp.max(jnp.abs(auto_mean)))
+            # float32 ratios of order 1 / (1 - a^2) = 13 at a = exp(-0.04): a relative 1e-3
+            np.testing.assert_allclose(closed_mean, auto_mean, rtol=1e-3, atol=1e-5 * scale)
+            np.testing.assert_allclose(closed_sigma, auto_sigma, rtol=1e-3, atol=1e-4 * abs(float(auto_sigma)) + 1e-6)
+
+
+def test_correlated_noise_is_a_unit_variance_ar1():
+    """n_t = a n_{t-1} + sqrt(1 - a^2) xi_t: stationary variance 1, lag-k autocorrelation a^k
+    (an Ornstein-Uhlenbeck process with time constant tau_n sampled every dt: a = exp(-dt/tau_n))."""
+    decay = policy.noise_decay(0.2, 0.008)
+    assert decay == math.exp(-0.04) and policy.noise_decay(0.0, 0.008) == 0.0
+    xi = jax.random.normal(jax.random.PRNGKey(0), (200_000,))
+    _, n = jax.lax.scan(lambda prev, x: (policy.exploration_noise(prev, x, decay),) * 2, jnp.float32(0), xi)
+    n = np.asarray(n[1000:])
+    assert abs(n.var() - 1.0) < 0.05   # the sample's standard error is about 0.03 at this correlation
+    lag = 25                            # 0.2 s: autocorrelation e^-1
+    assert abs(np.corrcoef(n[:-lag], n[lag:])[0, 1] - decay**lag) < 0.03
+
+
 # --------------------------------------------------------------------------- actor-critic
 
 

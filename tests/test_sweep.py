@@ -135,3 +135,31 @@ def test_bad_config_names_the_key(tmp_path, text, key):
     path.write_text(text)
     with pytest.raises(ValueError, match=key.replace(".", r"\.").replace("[", r"\[")):
         config.load_spec(str(path))
+
+
+def test_controls_run_beside_table1(finished_quick, tmp_path, walks_mujoco):
+    """`mjxcpg controls` runs the four controls in the run's protocol and writes them into the
+    run's table1.md.  Their 20 s walks are independent checks: the a_5 = 0 control walks the
+    session's a_5 = 0 gait and the hand-feedback control the hand-designed gait (the same
+    physics, another compiled batch: within 1%)."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_quick, run)
+    assert main(["controls", "--run", str(run), "--trials", "4", "--quiet"]) == 0
+    table = (run / "table1.md").read_text()
+    for label in ("(a) learning off", "(b) learning off, sigma at its smallest", "(c) a_5 = 0",
+                  "(d) hand-designed feedback"):
+        assert f"| {label}" in table
+    stats = json.loads((run / "stats.json").read_text())
+    zero = [r["velocity_20s"] for r in stats["arms"]["zero_feedback"]]
+    hand = [r["velocity_20s"] for r in stats["arms"]["hand_feedback"]]
+    np.testing.assert_allclose(zero, walks_mujoco[1].mean_vx, rtol=0.01)
+    np.testing.assert_allclose(hand, walks_mujoco[0].mean_vx, rtol=0.01)
+    for arm in ("learning_off", "learning_off_min_sigma", "zero_feedback", "hand_feedback"):
+        assert all(r["trials"] <= 4 for r in stats["arms"][arm])
+
+
+def test_controls_need_a_finished_run(tmp_path, capsys):
+    assert main(["controls", "--run", str(tmp_path / "nothing")]) == 2
+    assert "no finished run" in capsys.readouterr().err
