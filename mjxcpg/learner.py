@@ -20,7 +20,9 @@ A trial ends at a fall (the robot is down, or its physics diverged) or after 20 
 fall the TD error is delta = r_fall - V(x(t - dt)), Doya's (2000) terminal condition: the
 value just before the fall is pulled toward the fall's reward (-1), with no future after it.
 Learning has succeeded after ``success_streak`` successive trials without a fall; the policy
-goes on learning for ``TrialParams.trials_after_success`` more trials, then is frozen.
+goes on learning for ``TrialParams.trials_after_success`` more trials, then stops with the
+newest weights that had just gone ``success_streak`` trials without a fall (learning on can
+also unlearn: the final policy is one that passed the success test).
 """
 
 from __future__ import annotations
@@ -91,6 +93,7 @@ class LearnerState(NamedTuple):
     previous_basis: jax.Array     # b(x(t - dt)); V(t - dt) is re-evaluated with current weights
     has_previous: jax.Array
     noise: jax.Array              # the exploration noise n(t - dt) of the last action (0 before the first)
+    kept: ac.Weights              # the newest weights whose last success_streak trials had no fall
     book: Bookkeeping
     estimate: estimator.EstimatorState | None = None  # only with Task.estimator (no leaves otherwise)
 
@@ -159,7 +162,7 @@ def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
         k_s=jnp.float32(k_s), key=key, period=jnp.int32(0), cpg=cpg.init_state(),
         weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k),
         previous_basis=jnp.zeros(k, jnp.float32), has_previous=jnp.bool_(False),
-        noise=jnp.float32(0), book=Bookkeeping(
+        noise=jnp.float32(0), kept=ac.init_weights(task.learner, k), book=Bookkeeping(
             trial=jnp.int32(0), step=jnp.int32(0), handover=_handover_step(task, jax.random.uniform(sub)),
             trial_return=jnp.float32(0), filtered_vx=jnp.float32(0), streak=jnp.int32(0),
             trials_to_success=jnp.int32(-1), returns=jnp.zeros(n, jnp.float32),
@@ -258,13 +261,18 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
         mean_abs_a5=per_trial(book.mean_abs_a5, abs_a5_sum / acted),
         sigmas=per_trial(book.sigmas, ngnet.policy_std(weights.sigma)),
     )
+    kept = tree_where(record & ~fell & (streak >= task.trial.success_streak), weights, state.kept)
+    # The step that ends learning hands over the kept weights: the final policy passed the test.
+    stops = record & (book.trials_to_success >= 0) & (
+        book.trial >= book.trials_to_success + task.trial.trials_after_success)
+    weights = tree_where(stops, kept, weights)
     state = LearnerState(
         k_s=state.k_s, key=state.key, period=state.period + 1,
         cpg=tree_where(ended, cpg.init_state(), cpg_state),
         weights=weights,
         traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
         previous_basis=b, has_previous=acting & ~ended,
-        noise=jnp.where(acting & ~ended, noise, 0.0), book=book,
+        noise=jnp.where(acting & ~ended, noise, 0.0), kept=kept, book=book,
         estimate=tree_where(ended, _initial_estimate(task), estimate_state),
     )
     return state, jnp.where(ended, home_ctrl, ctrl), ended

@@ -172,3 +172,21 @@ def test_policy_freezes_at_success_by_default():
     frozen = script.state.weights
     script.run(sensors(task.layout, STANDING, 0.05), TRIAL_STEPS)
     np.testing.assert_array_equal(script.state.weights.critic, frozen.critic)
+
+
+def test_learning_on_ends_with_the_last_policy_that_passed_the_test():
+    """success_streak = 2: success after trials 1-2; trial 3 falls, trial 4 does not, and
+    learning stops after trial 4 (trials_after_success = 2).  The last policy whose previous
+    2 trials had no fall is the one at the end of trial 2: the run ends with it."""
+    task = make_task(trials_after_success=2)
+    script = Script(task, critic=0.2)
+    walking, fallen = sensors(task.layout, STANDING, 0.05), sensors(task.layout, FALLEN, 0.0)
+    script.run(walking, 2 * TRIAL_STEPS)
+    at_success = script.state.weights
+    assert int(script.state.book.trials_to_success) == 2
+    script.run(walking, HANDOVER_STEP + 2)
+    script.run(fallen)
+    script.run(walking, TRIAL_STEPS)
+    assert int(script.state.book.trial) == 4 and bool(is_done(task, script.state))
+    for final, kept in zip(script.state.weights, at_success):
+        np.testing.assert_array_equal(final, kept)
