@@ -163,3 +163,25 @@ def test_controls_run_beside_table1(finished_quick, tmp_path, walks_mujoco):
 def test_controls_need_a_finished_run(tmp_path, capsys):
     assert main(["controls", "--run", str(tmp_path / "nothing")]) == 2
     assert "no finished run" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_learning_beats_the_controls(tmp_path):
+    """Three k_s = 10 learners in the stats config's set-up against controls (a) and (b) of
+    the same protocol: no learner of control (a) (learning off, sigma as initialised) meets
+    the success criterion, and the learners earn more reward over their last 20 trials than
+    control (b) (learning off, sigma at its smallest), on average over the three seeds.
+    Several minutes on 2 cores."""
+    stats_spec = config.load_spec("stats")
+    text = ("k_s = [10.0, 10.0, 10.0]\nseeds = [100, 101, 102]\n[trial]\nmax_trials = 400\n"
+            f"trials_after_success = {stats_spec.trial.trials_after_success}\n[learner]\n"
+            f"a_max = {stats_spec.learner.a_max}\nmax_abs_td_error = {stats_spec.learner.max_abs_td_error}\n")
+    (tmp_path / "small.toml").write_text(text)
+    run = tmp_path / "run"
+    assert main(["sweep", "--config", str(tmp_path / "small.toml"), "--out", str(run), "--quiet"]) == 0
+    assert main(["controls", "--run", str(run), "--only", "learning_off", "learning_off_min_sigma",
+                 "--trials", "200", "--quiet"]) == 0
+    arms = json.loads((run / "stats.json").read_text())["arms"]
+    assert not any(r["succeeded"] for r in arms["learning_off"])
+    learned = np.mean([r["final_return"] for r in arms["learners"]])
+    assert learned > np.mean([r["final_return"] for r in arms["learning_off_min_sigma"]])
