@@ -282,7 +282,7 @@ def test_hand_designed_gait_speed_within_three_percent(walks_mujoco, walks_mjx):
 
 def test_learned_policy_speed_within_five_percent(walks_mujoco, walks_mjx):
     """The policy stored in tests/data (learned on the native C engine) walks 20 s on both
-    engines without a fall, at mean speeds within 5% (measured C 0.0613, MJX 0.0604 m/s)."""
+    engines without a fall, at mean speeds within 5% (measured C 0.0660, MJX 0.0668 m/s)."""
     c, x = walks_mujoco[LEARNED], walks_mjx[LEARNED]
     assert not c.fell and not x.fell
     assert c.mean_vx > 0.03

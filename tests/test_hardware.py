@@ -186,8 +186,8 @@ def _low_pass(x: np.ndarray, dt: float, tau: float = 0.5) -> np.ndarray:
 
 @pytest.mark.parametrize("robot, velocity_bias, velocity_rms", [
     ("nominal", 0.005, 0.008),
-    # On the hardware robot the stance sole slips on the lower friction (and gyro noise and
-    # bias enter the inclination): the estimate reads about 0.01 m/s fast (docs/hardware.md).
+    # On the hardware robot the stance sole slips on the lower friction, and gyro noise and
+    # bias enter the inclination: a looser bound than on the nominal robot.
     ("hardware", 0.02, 0.025),
 ])
 def test_estimator_is_close_to_ground_truth_on_a_walk(robot, velocity_bias, velocity_rms):
