@@ -178,6 +178,8 @@ def cmd_controls(args: argparse.Namespace) -> dict:
 def cmd_transfer(args: argparse.Namespace) -> dict:
     from mjxcpg import transfer
 
+    if not (Path(args.run) / "summary.json").is_file():
+        raise UserError(f"{args.run} holds no finished run (no summary.json); run the sweep first")
     result = transfer.walk_on_engines(Path(args.run), args.seconds)
     for r in result["learners"]:
         print(f"learner {r['learner']:3d}  k_s {r['k_s']:4g}  C {r['mean_vx_c']:.4f}  MJX {r['mean_vx_mjx']:.4f}"

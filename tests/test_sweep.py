@@ -185,3 +185,8 @@ def test_learning_beats_the_controls(tmp_path):
     assert not any(r["succeeded"] for r in arms["learning_off"])
     learned = np.mean([r["final_return"] for r in arms["learners"]])
     assert learned > np.mean([r["final_return"] for r in arms["learning_off_min_sigma"]])
+
+
+def test_transfer_needs_a_finished_run(tmp_path, capsys):
+    assert main(["transfer", "--run", str(tmp_path / "nothing")]) == 2
+    assert "no finished run" in capsys.readouterr().err
