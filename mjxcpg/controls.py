@@ -55,13 +55,15 @@ def run_controls(run_dir: Path, names=tuple(CONTROLS), trials: int = DEFAULT_TRI
     """Run the controls of the run in ``run_dir`` into ``run_dir/controls/NAME`` and rewrite
     the run's table1.md with them beside its learners.  Returns each control's wall time."""
     spec, _ = runs.read_config(run_dir)
-    walls = {}
-    for name in names:
+    specs = {name: control_spec(spec, name, trials) for name in names}  # every refusal before any run
+    walls_path = run_dir / "controls" / "wall_s.json"
+    walls = json.loads(walls_path.read_text()) if walls_path.is_file() else {}
+    for name, cspec in specs.items():
         out = run_dir / "controls" / name
-        sim, task, state, wall_s = runs.execute(out, control_spec(spec, name, trials), engine,
-                                                resume=resume, force=force, progress=progress)
-        report.write_report(out, control_spec(spec, name, trials), sim, task, state, plots_too=False)
+        sim, task, state, wall_s = runs.execute(out, cspec, engine, resume=resume, force=force,
+                                                progress=progress)
+        report.write_report(out, cspec, sim, task, state, plots_too=False)
         walls[name] = wall_s
-    (run_dir / "controls" / "wall_s.json").write_text(json.dumps(walls, indent=1))
+        walls_path.write_text(json.dumps(walls, indent=1))
     report.write_table1(run_dir)
     return walls

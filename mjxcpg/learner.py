@@ -20,9 +20,9 @@ A trial ends at a fall (the robot is down, or its physics diverged) or after 20 
 fall the TD error is delta = r_fall - V(x(t - dt)), Doya's (2000) terminal condition: the
 value just before the fall is pulled toward the fall's reward (-1), with no future after it.
 Learning has succeeded after ``success_streak`` successive trials without a fall; the policy
-goes on learning for ``TrialParams.trials_after_success`` more trials, then stops with the
-newest weights that had just gone ``success_streak`` trials without a fall (learning on can
-also unlearn: the final policy is one that passed the success test).
+goes on learning for ``TrialParams.trials_after_success`` more trials (or until the trial
+budget ends), then stops with the weights as they were at the end of the newest streak of
+``success_streak`` trials without a fall (learning on can also unlearn).
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ class LearnerState(NamedTuple):
     previous_basis: jax.Array     # b(x(t - dt)); V(t - dt) is re-evaluated with current weights
     has_previous: jax.Array
     noise: jax.Array              # the exploration noise n(t - dt) of the last action (0 before the first)
-    kept: ac.Weights              # the newest weights whose last success_streak trials had no fall
+    kept: ac.Weights              # the weights at the end of the newest streak of success_streak fall-free trials
     book: Bookkeeping
     estimate: estimator.EstimatorState | None = None  # only with Task.estimator (no leaves otherwise)
 
@@ -263,8 +263,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     )
     kept = tree_where(record & ~fell & (streak >= task.trial.success_streak), weights, state.kept)
     # The step that ends learning hands over the kept weights: the final policy passed the test.
-    stops = record & (book.trials_to_success >= 0) & (
-        book.trial >= book.trials_to_success + task.trial.trials_after_success)
+    stops = record & (book.trials_to_success >= 0) & is_done(task, state._replace(book=book))
     weights = tree_where(stops, kept, weights)
     state = LearnerState(
         k_s=state.k_s, key=state.key, period=state.period + 1,

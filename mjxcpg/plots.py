@@ -212,9 +212,10 @@ def diagnostics(results: list[dict], path: Path, window: int = 20) -> None:
             rows = np.full((len(group), length), np.nan)
             for i, r in enumerate(group):
                 values = np.asarray(r[key], float)
-                if key == "falls":
-                    kernel = np.ones(min(window, len(values))) / min(window, len(values))
-                    values = np.convolve(values, kernel, mode="full")[:len(values)]
+                if key == "falls":  # the mean over the last ``window`` trials, or all so far
+                    total = np.cumsum(values)
+                    total[window:] -= total[:-window]
+                    values = total / np.minimum(np.arange(1, len(values) + 1), window)
                 rows[i, :len(values)] = values
             trial = np.arange(1, length + 1)
             low, mid, high = np.nanpercentile(rows, [10, 50, 90], axis=0)

@@ -45,8 +45,9 @@ def noise_decay(correlation_s: float, dt: float) -> float:
 
 def exploration_noise(previous: jax.Array, innovation: jax.Array, decay: float) -> jax.Array:
     """Eq (12)'s n(t), optionally correlated in time: n_t = a n_{t-1} + sqrt(1 - a^2) xi_t with
-    xi_t ~ N(0, 1), a unit-variance AR(1) process (an Ornstein-Uhlenbeck process with time
-    constant tau_n sampled every dt).  a = 0 gives the paper's white noise n_t = xi_t.
+    xi_t ~ N(0, 1), an AR(1) process (an Ornstein-Uhlenbeck process with time constant tau_n
+    sampled every dt) whose variance settles at 1 within a few tau_n of n = 0, where every
+    trial starts it.  a = 0 gives the paper's white noise n_t = xi_t.
 
     White noise redrawn every control period is low-passed by the CPG (tau = 0.1 s), so most
     of it never reaches the legs; noise held over a fraction of a step does.

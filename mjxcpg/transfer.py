@@ -35,10 +35,13 @@ def walk_on_engines(run_dir: Path, seconds: float = 20.0) -> dict:
                      "mean_vx_c": c["mean_vx"], "mean_vx_mjx": x["mean_vx"],
                      "mjx_over_c": x["mean_vx"] / c["mean_vx"] if c["mean_vx"] else float("nan"),
                      "fell_c": c["fell"], "fell_mjx": x["fell"]})
-    ratios = np.array([r["mjx_over_c"] for r in rows])
-    off = np.abs(ratios - 1)
+    # Speed ratios of the successful policies that walk on C (a fall or a standstill has none).
+    off = np.array([abs(r["mjx_over_c"] - 1) for r in rows
+                    if r["succeeded"] and not r["fell_c"] and np.isfinite(r["mjx_over_c"])])
     result = {"learned_on": record["engine"], "seconds": seconds, "learners": rows,
-              "median_abs_difference": float(np.median(off)), "max_abs_difference": float(off.max()),
+              "compared": int(off.size),
+              "median_abs_difference": float(np.median(off)) if off.size else None,
+              "max_abs_difference": float(off.max()) if off.size else None,
               "falls_c": sum(r["fell_c"] for r in rows), "falls_mjx": sum(r["fell_mjx"] for r in rows)}
-    (run_dir / "transfer.json").write_text(json.dumps(result, indent=1))
+    (run_dir / "transfer.json").write_text(json.dumps(report._json_safe(result), indent=1))
     return result

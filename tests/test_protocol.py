@@ -7,6 +7,7 @@ the learner."""
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -27,11 +28,11 @@ FALLEN = 0.10
 K_S = 2.0
 
 
-def make_task(**trial) -> Task:
+def make_task(learner: ac.LearnerParams = ac.LearnerParams(), **trial) -> Task:
     layout = Layout.of(load_model())
     defaults = dict(trial_seconds=TRIAL_STEPS * DT, hand_seconds=(HANDOVER_STEP * DT,) * 2,
                     success_streak=2, max_trials=8)
-    return Task(layout=layout, controller=ControllerParams(), learner=ac.LearnerParams(),
+    return Task(layout=layout, controller=ControllerParams(), learner=learner,
                 trial=TrialParams(**(defaults | trial)), basis=ngnet.make_basis())
 
 
@@ -49,9 +50,10 @@ def sensors(layout: Layout, height: float, forward_velocity: float, roll_rate: f
 
 
 class Script:
-    """Steps one learner through scripted readings with zero exploration noise."""
+    """Steps one learner through scripted readings with a fixed exploration draw (0: none)."""
 
-    def __init__(self, task: Task, k_s: float = K_S, critic: float = 0.0):
+    def __init__(self, task: Task, k_s: float = K_S, critic: float = 0.0, noise: float = 0.0):
+        self.noise = jnp.float32(noise)
         self.task = task
         self.state = init_learner(task, k_s, seed=0)
         weights = self.state.weights._replace(critic=jnp.full_like(self.state.weights.critic, critic))
@@ -62,7 +64,7 @@ class Script:
     def run(self, readings: Sensors, steps: int = 1) -> list[bool]:
         ended = []
         for _ in range(steps):
-            self.state, _, end = self.step(self.state, readings, self.home, Draws(jnp.float32(0), jnp.float32(0)))
+            self.state, _, end = self.step(self.state, readings, self.home, Draws(self.noise, jnp.float32(0)))
             ended.append(bool(end))
         return ended
 
@@ -130,9 +132,15 @@ def test_fall_ends_the_trial_with_the_terminal_td_error(task):
     np.testing.assert_allclose(float(book.returns[0]), rewards_before_fall - 1.0, rtol=1e-5)
 
 
-def test_traces_and_noise_reset_between_trials(task):
-    script = Script(task)
+def test_traces_and_noise_reset_between_trials():
+    """With correlated noise (a = exp(-dt / 0.2 s)) and the draw xi = 1 every period, the noise
+    after k acting periods is sqrt(1 - a^2) (1 + a + ... + a^(k-1)); a trial's end resets it
+    and the traces to 0."""
+    task = make_task(ac.LearnerParams(noise_correlation_s=0.2))
+    script = Script(task, noise=1.0)
     script.run(sensors(task.layout, STANDING, 0.1), HANDOVER_STEP + 3)
+    a = math.exp(-DT / 0.2)
+    np.testing.assert_allclose(float(script.state.noise), math.sqrt(1 - a * a) * (1 + a + a * a), rtol=1e-5)
     assert float(jnp.abs(script.state.traces.critic).sum()) > 0
     script.run(sensors(task.layout, FALLEN, 0.1))
     for trace in script.state.traces:
@@ -172,6 +180,22 @@ def test_policy_freezes_at_success_by_default():
     frozen = script.state.weights
     script.run(sensors(task.layout, STANDING, 0.05), TRIAL_STEPS)
     np.testing.assert_array_equal(script.state.weights.critic, frozen.critic)
+
+
+def test_budget_end_after_success_also_ends_with_the_kept_policy():
+    """success_streak = 2, trials_after_success = 5, max_trials = 4: success after trials 1-2,
+    trial 3 falls, trial 4 ends the budget; the run ends with the weights of trial 2's end."""
+    task = make_task(trials_after_success=5, max_trials=4)
+    script = Script(task, critic=0.2)
+    walking, fallen = sensors(task.layout, STANDING, 0.05), sensors(task.layout, FALLEN, 0.0)
+    script.run(walking, 2 * TRIAL_STEPS)
+    at_success = script.state.weights
+    script.run(walking, HANDOVER_STEP + 2)
+    script.run(fallen)
+    script.run(walking, TRIAL_STEPS)
+    assert int(script.state.book.trial) == 4 and bool(is_done(task, script.state))
+    for final, kept in zip(script.state.weights, at_success):
+        np.testing.assert_array_equal(final, kept)
 
 
 def test_learning_on_ends_with_the_last_policy_that_passed_the_test():

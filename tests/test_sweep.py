@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import HAND, STEPPING
+
 from mjxcpg import config, train
 from mjxcpg.cli import main
 from mjxcpg.sim import make_simulation
@@ -154,8 +156,8 @@ def test_controls_run_beside_table1(finished_quick, tmp_path, walks_mujoco):
     stats = json.loads((run / "stats.json").read_text())
     zero = [r["velocity_20s"] for r in stats["arms"]["zero_feedback"]]
     hand = [r["velocity_20s"] for r in stats["arms"]["hand_feedback"]]
-    np.testing.assert_allclose(zero, walks_mujoco[1].mean_vx, rtol=0.01)
-    np.testing.assert_allclose(hand, walks_mujoco[0].mean_vx, rtol=0.01)
+    np.testing.assert_allclose(zero, walks_mujoco[STEPPING].mean_vx, rtol=0.01)
+    np.testing.assert_allclose(hand, walks_mujoco[HAND].mean_vx, rtol=0.01)
     for arm in ("learning_off", "learning_off_min_sigma", "zero_feedback", "hand_feedback"):
         assert all(r["trials"] <= 4 for r in stats["arms"][arm])
 
