@@ -215,12 +215,12 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     result = evaluate.evaluate_run(spec, sim, task, state, learners, params, robot=args.robot,
                                    parts=parts, progress=progress)
     if args.robot == "hardware" and "transfer" in parts:
-        from mjxcpg import hardware
+        from mjxcpg import transfer
 
         if progress:
             progress(f"transfer: {args.transfer_repeats} walks per policy on the hardware robot")
-        result["transfer"] = hardware.transfer(run_dir, engine=args.engine, learners=learners,
-                                               repeats=args.transfer_repeats)
+        result["transfer"] = transfer.hardware_transfer(run_dir, engine=args.engine, learners=learners,
+                                                        repeats=args.transfer_repeats)
     # Each robot's evaluation has its own place, so that one never overwrites the other's.
     out = Path(args.out) if args.out else run_dir if args.robot == "nominal" else run_dir / args.robot
     table1_text = report.table1(train.learner_results(spec, state.learners))

@@ -11,7 +11,7 @@ learns on, trial after trial, with the learner and the trial protocol of its run
 * a fresh trial count and success criterion (20 successive trials without a fall).
 
 The result directory is a run directory: ``load_run(out, robot=...)`` reloads the policy
-(e.g. ``hardware.walk_policies``), ``online.json`` holds trials to success, per-trial returns
+(e.g. ``transfer.walk_policies``), ``online.json`` holds trials to success, per-trial returns
 and falls, and whether the final policy walks 20 s by ground truth.
 """
 

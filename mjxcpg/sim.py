@@ -7,7 +7,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from mjxcpg import engines
+from mjxcpg import engines, hardware
 from mjxcpg.controller import ControllerParams
 from mjxcpg.robot import Layout, load_model, standing_qpos
 
@@ -47,8 +47,6 @@ def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
     qpos0 = standing_qpos(model, layout, params.x0, params.z0)
     name = engine or engines.default_engine()
     if robot == "hardware":
-        from mjxcpg import hardware
-
         model = hardware.perturbed_model(model)
         physics_engine = hardware.HardwareEngine(engines.make_engine(name, model, round(substeps)))
     else:

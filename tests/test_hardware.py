@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from learned_run import make_learned_run
-from mjxcpg import engines, estimator, hardware, runs, train, walk
+from mjxcpg import engines, estimator, hardware, runs, train, transfer, walk
 from mjxcpg.cli import main
 from mjxcpg.controller import control_step, hand_feedback
 from mjxcpg.learner import init_learner
@@ -251,7 +251,7 @@ def learned_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_transfer_reports_both_robots(learned_run):
-    result = hardware.transfer(learned_run, repeats=2)
+    result = transfer.hardware_transfer(learned_run, repeats=2)
     assert result["succeeded_in_simulation"] == 1 and result["walk_nominal"] == 1
     (row,) = result["learners"]
     assert row["walked_nominal"] and row["mean_vx_nominal"] > 0.03
@@ -259,7 +259,7 @@ def test_transfer_reports_both_robots(learned_run):
     assert result["walk_hardware"] == int(row["walked_hardware"])
     assert result["walk_hardware_any"] == int(row["walks_hardware"] > 0)
     with pytest.raises(runs.RunError, match="out of range"):
-        hardware.walk_policies(learned_run, learners=[3])
+        transfer.walk_policies(learned_run, learners=[3])
 
 
 @pytest.mark.slow
