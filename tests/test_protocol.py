@@ -182,27 +182,9 @@ def test_policy_freezes_at_success_by_default():
     np.testing.assert_array_equal(script.state.weights.critic, frozen.critic)
 
 
-def test_budget_end_after_success_also_ends_with_the_kept_policy():
-    """success_streak = 2, trials_after_success = 5, max_trials = 4: success after trials 1-2,
-    trial 3 falls, trial 4 ends the budget; the run ends with the weights of trial 2's end."""
-    task = make_task(trials_after_success=5, max_trials=4)
-    script = Script(task, critic=0.2)
-    walking, fallen = sensors(task.layout, STANDING, 0.05), sensors(task.layout, FALLEN, 0.0)
-    script.run(walking, 2 * TRIAL_STEPS)
-    at_success = script.state.weights
-    script.run(walking, HANDOVER_STEP + 2)
-    script.run(fallen)
-    script.run(walking, TRIAL_STEPS)
-    assert int(script.state.book.trial) == 4 and bool(is_done(task, script.state))
-    for final, kept in zip(script.state.weights, at_success):
-        np.testing.assert_array_equal(final, kept)
-
-
-def test_learning_on_ends_with_the_last_policy_that_passed_the_test():
-    """success_streak = 2: success after trials 1-2; trial 3 falls, trial 4 does not, and
-    learning stops after trial 4 (trials_after_success = 2).  The last policy whose previous
-    2 trials had no fall is the one at the end of trial 2: the run ends with it."""
-    task = make_task(trials_after_success=2)
+def assert_ends_with_weights_of_success(task: Task) -> None:
+    """Two fall-free trials (success), a third that falls, a fourth without a fall: learning
+    has stopped after trial 4 and the weights are those at the end of trial 2."""
     script = Script(task, critic=0.2)
     walking, fallen = sensors(task.layout, STANDING, 0.05), sensors(task.layout, FALLEN, 0.0)
     script.run(walking, 2 * TRIAL_STEPS)
@@ -214,3 +196,18 @@ def test_learning_on_ends_with_the_last_policy_that_passed_the_test():
     assert int(script.state.book.trial) == 4 and bool(is_done(task, script.state))
     for final, kept in zip(script.state.weights, at_success):
         np.testing.assert_array_equal(final, kept)
+
+
+def test_budget_end_after_success_also_ends_with_the_kept_policy():
+    """success_streak = 2, trials_after_success = 5, max_trials = 4: success after trials 1-2,
+    trial 3 falls, trial 4 ends the budget; the run ends with the weights of trial 2's end."""
+    task = make_task(trials_after_success=5, max_trials=4)
+    assert_ends_with_weights_of_success(task)
+
+
+def test_learning_on_ends_with_the_last_policy_that_passed_the_test():
+    """success_streak = 2: success after trials 1-2; trial 3 falls, trial 4 does not, and
+    learning stops after trial 4 (trials_after_success = 2).  The last policy whose previous
+    2 trials had no fall is the one at the end of trial 2: the run ends with it."""
+    task = make_task(trials_after_success=2)
+    assert_ends_with_weights_of_success(task)
