@@ -68,11 +68,17 @@ class LearnerParams:
     kappa_mu: float = 1.0       # policy-mean trace time constant, eq (21)
     kappa_sigma: float = 0.1    # policy-std trace time constant, eq (21)
     a_max: float = 1.0          # feedback amplitude of eq (10) (not given in the paper)
+    unit_slope: bool = False    # a_5 = a_max g(v / a_max) rather than eq (10)'s a_max g(v)
     noise_correlation_s: float = 0.0  # tau_n of the exploration noise; 0: white, as eq (12)
     rate_scale: float = 0.03    # multiplies alpha, beta_mu, beta_sigma (see above)
     init_w_sigma: float = 0.0   # initial w^sigma: sigma = 0.5
     max_abs_td_error: float | None = None
     w_sigma_bounds: tuple[float, float] | None = (-2.0, 2.0)
+
+    @property
+    def v_scale(self) -> float:
+        """The divisor of v inside eq (10)'s g (see ``policy.feedback_action``)."""
+        return self.a_max if self.unit_slope else 1.0
 
 
 class Weights(NamedTuple):

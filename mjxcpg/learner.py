@@ -223,7 +223,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     noise = policy.exploration_noise(state.noise, draws.noise, policy.noise_decay(p.noise_correlation_s, task.dt))
     v = policy.sample_action(mean, std, noise)
     hand = hand_feedback(task.controller, obs)
-    after_handover = {"policy": policy.feedback_action(v, p.a_max), "zero": jnp.zeros_like(hand), "hand": hand}
+    after_handover = {"policy": policy.feedback_action(v, p.a_max, p.v_scale), "zero": jnp.zeros_like(hand), "hand": hand}
     a5 = jnp.where(acting, after_handover[task.trial.actor], hand)
     previous_b = jnp.where(state.has_previous, state.previous_basis, 0.0)  # b_{t-1}, 0 at the first action
     traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt,
@@ -294,8 +294,9 @@ def actor_feedback(task: Task):
 
 def policy_mean_feedback(task: Task):
     """a_5 of the learned policy without noise, for walking and evaluation:
-    ``feedback(obs, weights)`` = a_max g(mu(x))."""
+    ``feedback(obs, weights)`` = a_max g(mu(x) / v_scale)."""
     def feedback(obs: Observation, weights: ac.Weights) -> jax.Array:
         b = ngnet.normalized_basis(task.basis, policy_input(obs))
-        return policy.feedback_action(ngnet.ngnet_value(weights.mean, b), task.learner.a_max)
+        return policy.feedback_action(ngnet.ngnet_value(weights.mean, b), task.learner.a_max,
+                                      task.learner.v_scale)
     return feedback

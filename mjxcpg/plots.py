@@ -40,13 +40,13 @@ def learning_curves(results: list[dict], path: Path, title: str = "") -> None:
 
 
 def policy_map(mean_weights: np.ndarray, basis: ngnet.NGnetBasis, a_max: float, path: Path,
-               title: str = "") -> None:
-    """The policy's mean feedback a_max g(mu(x)) over (d theta_roll/dt, d theta_pitch/dt)."""
+               title: str = "", v_scale: float = 1.0) -> None:
+    """The policy's mean feedback a_max g(mu(x) / v_scale) over (d theta_roll/dt, d theta_pitch/dt)."""
     axis = np.linspace(-2, 2, 61)
     roll, pitch = np.meshgrid(axis, axis, indexing="xy")
     x = np.stack([roll.ravel(), pitch.ravel()], axis=-1)
     mean = jax.vmap(lambda xi: ngnet.ngnet_value(mean_weights, ngnet.normalized_basis(basis, xi)))(x)
-    a5 = np.asarray(policy.feedback_action(mean, a_max)).reshape(roll.shape)
+    a5 = np.asarray(policy.feedback_action(mean, a_max, v_scale)).reshape(roll.shape)
     fig, ax = plt.subplots(figsize=(5, 4))
     mesh = ax.pcolormesh(roll, pitch, a5, cmap="coolwarm", vmin=-a_max, vmax=a_max, shading="auto")
     fig.colorbar(mesh, ax=ax, label="a_5 (policy mean)")

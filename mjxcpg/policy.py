@@ -22,9 +22,13 @@ def squash(v: jax.Array) -> jax.Array:
     return (2.0 / jnp.pi) * jnp.arctan(0.5 * jnp.pi * v)
 
 
-def feedback_action(v: jax.Array, a_max: float) -> jax.Array:
-    """Eq (10): a_j = a_j^max g(v_j)."""
-    return a_max * squash(v)
+def feedback_action(v: jax.Array, a_max: float, v_scale: float = 1.0) -> jax.Array:
+    """Eq (10): a_j = a_j^max g(v_j / v_scale).
+
+    ``v_scale`` = 1 is the printed form.  ``v_scale`` = a_max keeps the slope at 0 at 1 for
+    every a_max, so a larger a_max raises the ceiling without amplifying the exploration
+    noise or the mean's steps near 0."""
+    return a_max * squash(v / v_scale)
 
 
 def sample_action(mean: jax.Array, std: jax.Array, noise: jax.Array) -> jax.Array:

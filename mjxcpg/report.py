@@ -63,7 +63,8 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
             plots.policy_map(weights.mean[i], task.basis, task.learner.a_max, out / f"policy_map_{i:02d}.png",
                              title=f"learner {i}: k_s={r['k_s']:g}, seed {r['seed']} (cf. Fig 5)\n"
                                    f"mean |dmu/d roll rate| {gradient['roll_rate']:.2f}, "
-                                   f"|dmu/d pitch rate| {gradient['pitch_rate']:.2f}")
+                                   f"|dmu/d pitch rate| {gradient['pitch_rate']:.2f}",
+                             v_scale=task.learner.v_scale)
     if plots_too:
         for k_s in sorted({r["k_s"] for r in results}):
             plots.learning_curves([r for r in results if r["k_s"] == k_s],

@@ -78,6 +78,15 @@ def test_squash_and_feedback_action():
     np.testing.assert_allclose(policy.feedback_action(v, 0.7), 0.7 * g, rtol=1e-6)
 
 
+def test_unit_slope_feedback_keeps_slope_one_and_reaches_a_max():
+    params = ac.LearnerParams(a_max=3.0, unit_slope=True)
+    a = np.asarray(policy.feedback_action(jnp.array([1e-3, 6.0 / math.pi, 1e7]), params.a_max, params.v_scale))
+    np.testing.assert_allclose(a[0], 1e-3, rtol=1e-4)   # slope 1 at 0, as with a_max = 1
+    np.testing.assert_allclose(a[1], 1.5, rtol=1e-6)    # 3 (2/pi) arctan(1) = 1.5
+    np.testing.assert_allclose(a[2], 3.0, rtol=1e-5)    # ceiling a_max
+    assert ac.LearnerParams(a_max=3.0).v_scale == 1.0   # the printed form by default
+
+
 def test_sample_action_and_log_policy():
     mean, std = jnp.float32(0.4), jnp.float32(0.3)
     np.testing.assert_allclose(policy.sample_action(mean, std, jnp.float32(2.0)), 1.0, rtol=1e-6)

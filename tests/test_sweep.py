@@ -177,7 +177,8 @@ def test_learning_beats_the_controls(tmp_path):
     stats_spec = config.load_spec("stats")
     text = ("k_s = [10.0, 10.0, 10.0]\nseeds = [100, 101, 102]\n[trial]\nmax_trials = 400\n"
             f"trials_after_success = {stats_spec.trial.trials_after_success}\n[learner]\n"
-            f"a_max = {stats_spec.learner.a_max}\nmax_abs_td_error = {stats_spec.learner.max_abs_td_error}\n")
+            f"a_max = {stats_spec.learner.a_max}\nunit_slope = {str(stats_spec.learner.unit_slope).lower()}\n"
+            f"max_abs_td_error = {stats_spec.learner.max_abs_td_error}\n")
     (tmp_path / "small.toml").write_text(text)
     run = tmp_path / "run"
     assert main(["sweep", "--config", str(tmp_path / "small.toml"), "--out", str(run), "--quiet"]) == 0
