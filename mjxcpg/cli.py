@@ -13,6 +13,8 @@ import os
 import sys
 from pathlib import Path
 
+import mjxcpg
+
 
 class UserError(Exception):
     """Bad input: reported as one line, exit status 2."""
@@ -260,10 +262,12 @@ def _print_result(result: dict, as_json: bool) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from mjxcpg.config import config_names
     from mjxcpg.engines import ENGINES
     from mjxcpg.sim import ROBOTS
 
     parser = _Parser(prog="mjxcpg", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {mjxcpg.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     walk = sub.add_parser("walk", help="walk with a controller and report the gait")
@@ -302,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     learn.set_defaults(handler=cmd_learn)
 
     sweep = sub.add_parser("sweep", help="many learners in lockstep (the paper's Table 1)")
-    sweep.add_argument("--config", default="paper", help="a name in configs/ or a .toml/.json path")
+    sweep.add_argument("--config", default="paper",
+                       help=f"a config that ships with mjxcpg ({', '.join(config_names())}) or a .toml/.json path")
     run_options(sweep)
     sweep.set_defaults(handler=cmd_sweep)
 
