@@ -77,8 +77,8 @@ def cmd_walk(args: argparse.Namespace) -> dict:
 def _learn_or_sweep(spec, args, out: Path) -> dict:
     from mjxcpg import report, runs
 
-    sim, task, state, wall_s = runs.execute(out, spec, args.engine, resume=args.resume,
-                                            force=args.force, progress=not args.quiet)
+    sim, task, state, wall_s = runs.execute(out, spec, args.engine, resume=args.resume, force=args.force,
+                                            progress=not args.quiet, tensorboard=args.tensorboard)
     summary = report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary
@@ -126,7 +126,7 @@ def _learn_online(args: argparse.Namespace) -> dict:
     trials = 400 if args.trials is None else args.trials
     return online.learn_online(source, args.learner, out, trials=trials, robot=args.robot,
                                reward=args.reward, engine=args.engine, force=args.force,
-                               progress=not args.quiet) | {"out": str(out)}
+                               progress=not args.quiet, tensorboard=args.tensorboard) | {"out": str(out)}
 
 
 def cmd_render(args: argparse.Namespace) -> dict:
@@ -172,7 +172,7 @@ def cmd_controls(args: argparse.Namespace) -> dict:
     walls = controls.run_controls(run_dir, args.only or tuple(controls.CONTROLS),
                                   trials=args.trials or controls.DEFAULT_TRIALS,
                                   engine=args.engine, resume=args.resume, force=args.force,
-                                  progress=not args.quiet)
+                                  progress=not args.quiet, tensorboard=args.tensorboard)
     print((run_dir / "table1.md").read_text())
     return {"out": str(run_dir / "controls"), "wall_s": walls}
 
@@ -286,7 +286,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="run directory (default: runs/...)")
         p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
         p.add_argument("--force", action="store_true", help="replace an existing --out")
-        p.add_argument("--quiet", action="store_true", help="no progress bar")
+        p.add_argument("--quiet", action="store_true", help="no progress line")
+        p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                       help="write no TensorBoard event files (OUT/tensorboard)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
     learn = sub.add_parser("learn", help="one learner learns the propulsive feedback a_5")
@@ -321,7 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
     ctl.add_argument("--resume", action="store_true", help="continue controls already started")
     ctl.add_argument("--force", action="store_true", help="replace controls already run")
-    ctl.add_argument("--quiet", action="store_true", help="no progress bar")
+    ctl.add_argument("--quiet", action="store_true", help="no progress line")
+    ctl.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                     help="write no TensorBoard event files")
     ctl.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     ctl.set_defaults(handler=cmd_controls)
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import HAND, STEPPING
+from test_monitoring import tensorboard_scalars
 
 from mjxcpg import config, train
 from mjxcpg.cli import main
@@ -27,7 +28,8 @@ def quick_spec():
 @pytest.fixture(scope="module")
 def finished_quick(tmp_path_factory, quick_spec):
     out = tmp_path_factory.mktemp("quick") / "run"
-    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native"]) == 0
+    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native",
+                 "--no-tensorboard"]) == 0
     return out
 
 
@@ -38,9 +40,12 @@ def test_sweep_writes_the_report(finished_quick, quick_spec):
         assert {"k_s", "seed", "succeeded", "trials_to_success", "mean_vx"} <= set(learner)
     assert "| all |" in (finished_quick / "table1.md").read_text()
     assert list(finished_quick.glob("policy_map_*.png")) and list(finished_quick.glob("learning_curve_*.png"))
+    assert not (finished_quick / "tensorboard").exists()  # --no-tensorboard
 
 
 def test_sigkill_then_resume_matches_uninterrupted_run(finished_quick, tmp_path):
+    """The killed run writes TensorBoard events, the uninterrupted one none: the same results
+    show that the events change nothing, and the events hold each trial once."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mjxcpg", "sweep", "--config", "quick", "--out", str(out), "--quiet",
            "--engine", "native"]
@@ -58,6 +63,10 @@ def test_sigkill_then_resume_matches_uninterrupted_run(finished_quick, tmp_path)
     assert json.loads((out / "returns.json").read_text()) == expected
     assert (json.loads((out / "summary.json").read_text())["learners"]
             == json.loads((finished_quick / "summary.json").read_text())["learners"])
+    for k, learner in enumerate(expected):
+        scalars = tensorboard_scalars(out / "tensorboard" / f"learner_{k:02d}_ks{learner['k_s']:g}_seed{learner['seed']}")
+        assert scalars["trial/return"] == [(t + 1, r) for t, r in enumerate(learner["returns"])]
+        assert [v for _, v in scalars["trial/fell"]] == [float(f) for f in learner["falls"]]
 
 
 def test_existing_output_is_never_overwritten(finished_quick, capsys):
