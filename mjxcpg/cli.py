@@ -135,7 +135,7 @@ def cmd_render(args: argparse.Namespace) -> dict:
     out = Path(args.out or Path(args.run) / "render")
     try:
         return render.render_gait(Path(args.run), args.learner, out, seconds=args.seconds,
-                                  engine=args.engine, robot=args.robot)
+                                  engine=args.engine, robot=args.robot, gif=args.gif)
     except render.RenderError as error:
         raise UserError(str(error)) from None
 
@@ -335,13 +335,14 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     tr.set_defaults(handler=cmd_transfer)
 
-    rend = sub.add_parser("render", help="filmstrip PNG and GIF of a learned gait (headless OpenGL)")
+    rend = sub.add_parser("render", help="filmstrip PNG and MP4 video of a learned gait (headless OpenGL)")
     rend.add_argument("--run", required=True, help="run directory")
     rend.add_argument("--learner", type=int, default=0, help="learner index within the run")
     rend.add_argument("--seconds", type=_positive_seconds, default=10.0, help="length of the walk")
     rend.add_argument("--robot", choices=ROBOTS, default="nominal")
     rend.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     rend.add_argument("--out", help="output directory (default: RUN/render)")
+    rend.add_argument("--gif", action="store_true", help="also write the video's frames as an animated GIF")
     rend.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     rend.set_defaults(handler=cmd_render)
 
