@@ -75,13 +75,10 @@ def cmd_walk(args: argparse.Namespace) -> dict:
 
 
 def _learn_or_sweep(spec, args, out: Path) -> dict:
-    from mjxcpg import report, runs
+    from mjxcpg import api
 
-    sim, task, state, wall_s = runs.execute(out, spec, args.engine, resume=args.resume, force=args.force,
-                                            progress=not args.quiet, tensorboard=args.tensorboard)
-    summary = report.write_report(out, spec, sim, task, state)
-    summary["wall_s"] = wall_s
-    return summary
+    return api.sweep(spec, out, args.engine, resume=args.resume, force=args.force, progress=not args.quiet,
+                     tensorboard=args.tensorboard)
 
 
 def cmd_learn(args: argparse.Namespace) -> dict:
@@ -200,34 +197,16 @@ def _nonnegative_int(text: str) -> int:
 def cmd_eval(args: argparse.Namespace) -> dict:
     """``eval --run DIR``: velocity (Fig 7), return map (Fig 8), slopes and pushes of the run's
     final policies, all learners in one batch; JSON and PNG under OUT/eval, OUT/report.md."""
-    import dataclasses as dc
+    from mjxcpg import api
 
-    from mjxcpg import evaluate, report, train
-    from mjxcpg.runs import check_learners, load_run
-
-    run_dir = Path(args.run)
-    spec, sim, task, state = load_run(run_dir, args.engine, robot=args.robot)
-    learners = check_learners(spec, args.learner or None)
     overrides = {name: getattr(args, name) for name in (
         "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
         if getattr(args, name) is not None}
-    params = dc.replace(evaluate.EvalParams(), **overrides)
-    parts = [p for p in ("return_map", "slopes", "pushes", "transfer") if p not in (args.skip or [])]
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
-    result = evaluate.evaluate_run(spec, sim, task, state, learners, params, robot=args.robot,
-                                   parts=parts, progress=progress)
-    if args.robot == "hardware" and "transfer" in parts:
-        from mjxcpg import transfer
-
-        if progress:
-            progress(f"transfer: {args.transfer_repeats} walks per policy on the hardware robot")
-        result["transfer"] = transfer.hardware_transfer(run_dir, engine=args.engine, learners=learners,
-                                                        repeats=args.transfer_repeats)
-    # Each robot's evaluation has its own place, so that one never overwrites the other's.
-    out = Path(args.out) if args.out else run_dir if args.robot == "nominal" else run_dir / args.robot
-    table1_text = report.table1(train.learner_results(spec, state.learners))
-    summary = report.write_eval_report(run_dir, result, out, table1_text)
-    return {"report": str(out / "report.md"), "engine": result["engine"], "robot": args.robot, **summary}
+    return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,
+                                 api.EvalParams(**overrides),
+                                 parts=[p for p in api.EVALUATIONS if p not in (args.skip or [])],
+                                 transfer_repeats=args.transfer_repeats, out=args.out, progress=progress)
 
 
 def _positive_int(text: str) -> int:

@@ -13,7 +13,7 @@ import json
 import shutil
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -185,12 +185,20 @@ def read_config(out: Path) -> tuple[train.RunSpec, dict]:
         raise RunError(f"{config_path} is damaged: {error}") from None
 
 
-def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal"):
+class LoadedRun(NamedTuple):
+    spec: train.RunSpec
+    sim: Simulation
+    task: train.Task
+    state: train.RunState  # the latest checkpoint's
+
+
+def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal") -> LoadedRun:
     """The spec, simulation, task and final state of a finished or interrupted run.
 
     On ``robot="hardware"`` (see ``mjxcpg.hardware``) the learners are the checkpoint's and the
     physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
     """
+    out = Path(out)
     spec, record = read_config(out)
     manager = _manager(out)
     if manager.latest_step() is None:
@@ -204,4 +212,4 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     state = restore_state(manager, train.init_run(recorded, task, spec), spec)
     if robot != "nominal":
         state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
-    return spec, sim, task, state
+    return LoadedRun(spec, sim, task, state)
