@@ -2,6 +2,7 @@
 environment outside the repository runs a sweep from another directory."""
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -22,20 +23,25 @@ def _run(argv, **kwargs) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 def test_the_wheel_installs_and_sweeps_from_another_directory(tmp_path):
+    # built from a copy: a build writes build/ and mjxcpg.egg-info/ beside the sources
+    source = tmp_path / "source"
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "runs", "build", "*.egg-info", "__pycache__", ".pytest_cache"))
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "--wheel-dir", str(tmp_path / "dist"),
-          str(REPO)], timeout=600)
+          str(source)], timeout=600)
     [wheel] = (tmp_path / "dist").glob("mjxcpg-*.whl")
     assert wheel.name.startswith(f"mjxcpg-{mjxcpg.__version__}-")
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"mjxcpg/configs/quick.toml", "mjxcpg/configs/paper.toml", "mjxcpg/models/qrio.xml"} <= names
 
+    # nothing of this checkout or of the test's environment may be seen from the fresh one
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     venv = tmp_path / "venv"
-    _run([sys.executable, "-m", "venv", str(venv)], timeout=300)
-    _run([str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", str(wheel)], timeout=1800)
+    _run([sys.executable, "-m", "venv", str(venv)], env=env, timeout=300)
+    _run([str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", str(wheel)], env=env, timeout=1800)
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     installed = _run([str(venv / "bin" / "python"), "-c", "import mjxcpg; print(mjxcpg.__file__)"],
                      cwd=elsewhere, env=env, timeout=300).stdout.strip()
     assert Path(installed).is_relative_to(venv), installed

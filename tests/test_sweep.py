@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -118,9 +119,8 @@ def test_diverged_robot_is_a_counted_fall_and_others_are_untouched(quick_spec):
     assert int(a.learners.book.trial[1]) == 0
     for i in (0, 2):
         np.testing.assert_array_equal(a.physics.physics[i], b.physics.physics[i])
-        for x, y in zip(jax.tree.leaves(jax.tree.map(lambda t: t[i], a.learners)),
-                        jax.tree.leaves(jax.tree.map(lambda t: t[i], b.learners))):
-            np.testing.assert_array_equal(x, y)
+        chex.assert_trees_all_equal(jax.tree.map(lambda t: t[i], a.learners),
+                                    jax.tree.map(lambda t: t[i], b.learners))
 
 
 def test_native_batch_equals_scalar_engine(quick_spec):
@@ -131,8 +131,7 @@ def test_native_batch_equals_scalar_engine(quick_spec):
         run = train.make_chunk(sim, task, 300)(train.init_run(sim, task, quick_spec),
                                                sim.engine.init(sim.qpos0, quick_spec.batch))
         results.append(jax.device_get(run))
-    for x, y in zip(jax.tree.leaves(results[0]), jax.tree.leaves(results[1])):
-        np.testing.assert_array_equal(x, y)
+    chex.assert_trees_all_equal(results[0], results[1])
 
 
 @pytest.mark.parametrize("text, key", [
