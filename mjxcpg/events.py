@@ -40,11 +40,11 @@ def learner_run_name(index: int, k_s: float, seed: int) -> str:
     return f"learner_{index:02d}_ks{k_s:g}_seed{seed}"
 
 
-def read_scalars(directory: Path) -> dict[str, dict[int, float]]:
-    """Every scalar of the event files in ``directory``: tag -> {step: value}.
-
-    A record cut short (a process killed while writing) ends its file."""
-    scalars: dict[str, dict[int, float]] = {}
+def read_events(directory: Path) -> list[tuple[float, int, dict[str, float]]]:
+    """The scalar events of the event files in ``directory``, in order of writing: (wall
+    time, step, {tag: value}).  A record cut short (a process killed while writing) ends its
+    file."""
+    found = []
     for path in sorted(directory.glob("events.out.tfevents.*")):
         data, start = path.read_bytes(), 0
         while start + _RECORD_HEADER.size <= len(data):
@@ -53,9 +53,18 @@ def read_scalars(directory: Path) -> dict[str, dict[int, float]]:
             if body + length + _RECORD_FOOTER > len(data):
                 break
             event = Event.FromString(data[body:body + length])
-            for value in event.summary.value:
-                scalars.setdefault(value.tag, {})[event.step] = value.simple_value
+            if event.summary.value:
+                found.append((event.wall_time, event.step, {v.tag: v.simple_value for v in event.summary.value}))
             start = body + length + _RECORD_FOOTER
+    return found
+
+
+def read_scalars(directory: Path) -> dict[str, dict[int, float]]:
+    """Every scalar of the event files in ``directory``: tag -> {step: value}."""
+    scalars: dict[str, dict[int, float]] = {}
+    for _, step, values in read_events(directory):
+        for tag, value in values.items():
+            scalars.setdefault(tag, {})[step] = value
     return scalars
 
 
