@@ -18,7 +18,7 @@ A robot-step is one physics step of one robot.  The workloads:
 the C engines, the host callback cost.  Compile time is reported apart and never counted
 in a rate.  Each rate is the median over timed calls after a warm-up call.
 
-Two test models: our robot (``models/qrio.xml``) and MJX's own benchmark humanoid
+Two test models: our robot (``mjxcpg/models/qrio.xml``) and MJX's own benchmark humanoid
 (``test_data/humanoid/humanoid.xml`` in the ``mujoco-mjx`` package, loaded as shipped and
 started from ``qpos0``), whose figures compare with published MJX numbers.
 """

@@ -13,6 +13,8 @@ import os
 import sys
 from pathlib import Path
 
+import mjxcpg
+
 
 class UserError(Exception):
     """Bad input: reported as one line, exit status 2."""
@@ -73,13 +75,10 @@ def cmd_walk(args: argparse.Namespace) -> dict:
 
 
 def _learn_or_sweep(spec, args, out: Path) -> dict:
-    from mjxcpg import report, runs
+    from mjxcpg import api
 
-    sim, task, state, wall_s = runs.execute(out, spec, args.engine, resume=args.resume,
-                                            force=args.force, progress=not args.quiet)
-    summary = report.write_report(out, spec, sim, task, state)
-    summary["wall_s"] = wall_s
-    return summary
+    return api.sweep(spec, out, args.engine, resume=args.resume, force=args.force, progress=not args.quiet,
+                     tensorboard=args.tensorboard)
 
 
 def cmd_learn(args: argparse.Namespace) -> dict:
@@ -124,7 +123,7 @@ def _learn_online(args: argparse.Namespace) -> dict:
     trials = 400 if args.trials is None else args.trials
     return online.learn_online(source, args.learner, out, trials=trials, robot=args.robot,
                                reward=args.reward, engine=args.engine, force=args.force,
-                               progress=not args.quiet) | {"out": str(out)}
+                               progress=not args.quiet, tensorboard=args.tensorboard) | {"out": str(out)}
 
 
 def cmd_render(args: argparse.Namespace) -> dict:
@@ -133,7 +132,7 @@ def cmd_render(args: argparse.Namespace) -> dict:
     out = Path(args.out or Path(args.run) / "render")
     try:
         return render.render_gait(Path(args.run), args.learner, out, seconds=args.seconds,
-                                  engine=args.engine, robot=args.robot)
+                                  engine=args.engine, robot=args.robot, gif=args.gif)
     except render.RenderError as error:
         raise UserError(str(error)) from None
 
@@ -170,7 +169,7 @@ def cmd_controls(args: argparse.Namespace) -> dict:
     walls = controls.run_controls(run_dir, args.only or tuple(controls.CONTROLS),
                                   trials=args.trials or controls.DEFAULT_TRIALS,
                                   engine=args.engine, resume=args.resume, force=args.force,
-                                  progress=not args.quiet)
+                                  progress=not args.quiet, tensorboard=args.tensorboard)
     print((run_dir / "table1.md").read_text())
     return {"out": str(run_dir / "controls"), "wall_s": walls}
 
@@ -198,34 +197,16 @@ def _nonnegative_int(text: str) -> int:
 def cmd_eval(args: argparse.Namespace) -> dict:
     """``eval --run DIR``: velocity (Fig 7), return map (Fig 8), slopes and pushes of the run's
     final policies, all learners in one batch; JSON and PNG under OUT/eval, OUT/report.md."""
-    import dataclasses as dc
+    from mjxcpg import api
 
-    from mjxcpg import evaluate, report, train
-    from mjxcpg.runs import check_learners, load_run
-
-    run_dir = Path(args.run)
-    spec, sim, task, state = load_run(run_dir, args.engine, robot=args.robot)
-    learners = check_learners(spec, args.learner or None)
     overrides = {name: getattr(args, name) for name in (
         "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
         if getattr(args, name) is not None}
-    params = dc.replace(evaluate.EvalParams(), **overrides)
-    parts = [p for p in ("return_map", "slopes", "pushes", "transfer") if p not in (args.skip or [])]
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
-    result = evaluate.evaluate_run(spec, sim, task, state, learners, params, robot=args.robot,
-                                   parts=parts, progress=progress)
-    if args.robot == "hardware" and "transfer" in parts:
-        from mjxcpg import transfer
-
-        if progress:
-            progress(f"transfer: {args.transfer_repeats} walks per policy on the hardware robot")
-        result["transfer"] = transfer.hardware_transfer(run_dir, engine=args.engine, learners=learners,
-                                                        repeats=args.transfer_repeats)
-    # Each robot's evaluation has its own place, so that one never overwrites the other's.
-    out = Path(args.out) if args.out else run_dir if args.robot == "nominal" else run_dir / args.robot
-    table1_text = report.table1(train.learner_results(spec, state.learners))
-    summary = report.write_eval_report(run_dir, result, out, table1_text)
-    return {"report": str(out / "report.md"), "engine": result["engine"], "robot": args.robot, **summary}
+    return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,
+                                 api.EvalParams(**overrides),
+                                 parts=[p for p in api.EVALUATIONS if p not in (args.skip or [])],
+                                 transfer_repeats=args.transfer_repeats, out=args.out, progress=progress)
 
 
 def _positive_int(text: str) -> int:
@@ -260,10 +241,12 @@ def _print_result(result: dict, as_json: bool) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from mjxcpg.config import config_names
     from mjxcpg.engines import ENGINES
     from mjxcpg.sim import ROBOTS
 
     parser = _Parser(prog="mjxcpg", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {mjxcpg.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     walk = sub.add_parser("walk", help="walk with a controller and report the gait")
@@ -282,7 +265,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="run directory (default: runs/...)")
         p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
         p.add_argument("--force", action="store_true", help="replace an existing --out")
-        p.add_argument("--quiet", action="store_true", help="no progress bar")
+        p.add_argument("--quiet", action="store_true", help="no progress line")
+        p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                       help="write no TensorBoard event files (OUT/tensorboard)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
     learn = sub.add_parser("learn", help="one learner learns the propulsive feedback a_5")
@@ -302,7 +287,8 @@ def build_parser() -> argparse.ArgumentParser:
     learn.set_defaults(handler=cmd_learn)
 
     sweep = sub.add_parser("sweep", help="many learners in lockstep (the paper's Table 1)")
-    sweep.add_argument("--config", default="paper", help="a name in configs/ or a .toml/.json path")
+    sweep.add_argument("--config", default="paper",
+                       help=f"a config that ships with mjxcpg ({', '.join(config_names())}) or a .toml/.json path")
     run_options(sweep)
     sweep.set_defaults(handler=cmd_sweep)
 
@@ -316,7 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
     ctl.add_argument("--resume", action="store_true", help="continue controls already started")
     ctl.add_argument("--force", action="store_true", help="replace controls already run")
-    ctl.add_argument("--quiet", action="store_true", help="no progress bar")
+    ctl.add_argument("--quiet", action="store_true", help="no progress line")
+    ctl.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                     help="write no TensorBoard event files")
     ctl.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     ctl.set_defaults(handler=cmd_controls)
 
@@ -326,13 +314,14 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     tr.set_defaults(handler=cmd_transfer)
 
-    rend = sub.add_parser("render", help="filmstrip PNG and GIF of a learned gait (headless OpenGL)")
+    rend = sub.add_parser("render", help="filmstrip PNG and MP4 video of a learned gait (headless OpenGL)")
     rend.add_argument("--run", required=True, help="run directory")
     rend.add_argument("--learner", type=int, default=0, help="learner index within the run")
     rend.add_argument("--seconds", type=_positive_seconds, default=10.0, help="length of the walk")
     rend.add_argument("--robot", choices=ROBOTS, default="nominal")
     rend.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     rend.add_argument("--out", help="output directory (default: RUN/render)")
+    rend.add_argument("--gif", action="store_true", help="also write the video's frames as an animated GIF")
     rend.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     rend.set_defaults(handler=cmd_render)
 

@@ -1,4 +1,5 @@
-"""Run configurations: typed dataclasses read from TOML (``configs/``) or JSON, validated.
+"""Run configurations: typed dataclasses read from TOML (the package's ``configs/``, or a file
+of the user's) or JSON, validated.
 
 An unknown key, a value of the wrong type or an impossible value is a ``ValueError`` whose
 one-line message names the key.
@@ -7,6 +8,7 @@ one-line message names the key.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 import math
 import tomllib
@@ -18,7 +20,8 @@ from typing import Any
 from mjxcpg.learner import ACTORS
 from mjxcpg.train import RunSpec
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+# Package data, so that an installed (non-editable) mjxcpg finds its configs too.
+CONFIG_DIR = importlib.resources.files("mjxcpg") / "configs"
 
 
 def _check(value: Any, annotation: Any, key: str) -> Any:
@@ -97,19 +100,23 @@ def validate(spec: RunSpec) -> RunSpec:
     return spec
 
 
+def config_names() -> list[str]:
+    """The configs that ship with mjxcpg, by name."""
+    return sorted(p.name.removesuffix(".toml") for p in CONFIG_DIR.iterdir() if p.name.endswith(".toml"))
+
+
 def load_spec(name_or_path: str) -> RunSpec:
-    """A config by name (``configs/NAME.toml``) or by path (.toml or .json)."""
+    """A config by name (one of ``config_names()``) or by path (.toml or .json)."""
     path = Path(name_or_path)
-    if not path.suffix:
-        path = CONFIG_DIR / f"{name_or_path}.toml"
-    if not path.is_file():
-        known = ", ".join(sorted(p.stem for p in CONFIG_DIR.glob("*.toml")))
-        raise ValueError(f"no config {name_or_path!r} (known: {known})")
+    source = CONFIG_DIR / f"{name_or_path}.toml" if not path.suffix else path
+    if not source.is_file():
+        raise ValueError(f"no config {name_or_path!r} (known: {', '.join(config_names())})")
+    suffix = Path(source.name).suffix
     try:
-        text = path.read_text()
-        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+        text = source.read_text()
+        data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not valid {path.suffix[1:].upper()}: {error}") from None
+        raise ValueError(f"{name_or_path}: not valid {suffix[1:].upper()}: {error}") from None
     return validate(from_dict(RunSpec, data))
 
 

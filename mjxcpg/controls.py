@@ -51,7 +51,7 @@ def control_spec(spec: RunSpec, name: str, trials: int = DEFAULT_TRIALS) -> RunS
 
 def run_controls(run_dir: Path, names=tuple(CONTROLS), trials: int = DEFAULT_TRIALS,
                  engine: str | None = None, resume: bool = False, force: bool = False,
-                 progress: bool = True) -> dict:
+                 progress: bool = True, tensorboard: bool = True) -> dict:
     """Run the controls of the run in ``run_dir`` into ``run_dir/controls/NAME`` and rewrite
     the run's table1.md with them beside its learners.  Returns each control's wall time."""
     spec, _ = runs.read_config(run_dir)
@@ -61,7 +61,7 @@ def run_controls(run_dir: Path, names=tuple(CONTROLS), trials: int = DEFAULT_TRI
     for name, cspec in specs.items():
         out = run_dir / "controls" / name
         sim, task, state, wall_s = runs.execute(out, cspec, engine, resume=resume, force=force,
-                                                progress=progress)
+                                                progress=progress, tensorboard=tensorboard)
         report.write_report(out, cspec, sim, task, state, plots_too=False)
         walls[name] = wall_s
         walls_path.write_text(json.dumps(walls, indent=1))

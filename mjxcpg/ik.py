@@ -5,7 +5,7 @@ pitch axes meet) in the pelvis frame: ``x`` forward, ``z`` the leg length downwa
 legs stay in their sagittal planes (hip yaw, hip roll and ankle roll are zero) and the sole
 is kept parallel to the pelvis' horizontal plane, so to the floor while the pelvis is level.
 
-Joint conventions (``models/qrio.xml``): pitch axes are +y, so a positive hip pitch swings
+Joint conventions (``mjxcpg/models/qrio.xml``): pitch axes are +y, so a positive hip pitch swings
 the foot backward, a positive knee flexes it, and zero everywhere is a straight leg.
 """
 

@@ -43,15 +43,13 @@ def continued_spec(spec: train.RunSpec, learner: int, trials: int, trial_seconds
 
 def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot: str = "hardware",
                  reward: str | None = None, engine: str | None = None, trial_seconds: float = 16.0,
-                 force: bool = False, progress: bool = True) -> dict:
+                 force: bool = False, progress: bool = True, tensorboard: bool = True) -> dict:
     """Continue learner ``learner`` of the run in ``source`` on ``robot``; write ``out``.
 
     ``reward``: "estimate" (the robot's sensors; the default on the hardware robot) or
     "truth" (the simulator's state; the default on the nominal one).
     Returns the summary that ``out/online.json`` holds, without the per-trial lists.
     """
-    from tqdm import tqdm
-
     reward = reward or ("estimate" if robot == "hardware" else "truth")
     if reward not in REWARD_SOURCES:
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
@@ -70,14 +68,8 @@ def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot
     state = train.RunState(physics=sim.engine.init(sim.qpos0, 1),
                            learners=jax.tree.map(lambda x: x[None], fresh))
 
-    bar = tqdm(total=trials, unit="trial", disable=not progress, dynamic_ncols=True)
-
-    def on_chunk(_, counts: dict) -> None:
-        bar.update(counts["trials"] - bar.n)
-
     start = time.perf_counter()
-    state = train.run_until_done(sim, task, spec, state, on_chunk)
-    bar.close()
+    state = runs.learn_to_end(out, sim, task, spec, state, None, progress, tensorboard)
     wall_s = time.perf_counter() - start
 
     result = train.learner_results(spec, state.learners)[0]

@@ -1,5 +1,6 @@
 """Headless pictures of a learned gait: a filmstrip PNG (snapshots every 0.1 s, like the
-paper's Fig 6) and an animated GIF.
+paper's Fig 6), an MP4 video (H.264, through the ffmpeg that imageio-ffmpeg ships) and, on
+request, an animated GIF.
 
 The walk is the learned policy's mean (no exploration noise) from the standing pose, run by
 the usual jitted ``walk.make_walk`` with each period's configuration recorded; MuJoCo's
@@ -20,6 +21,7 @@ import os
 import warnings
 from pathlib import Path
 
+import imageio_ffmpeg
 import numpy as np
 
 
@@ -165,11 +167,26 @@ def write_gif(frames: np.ndarray, path: Path, frame_seconds: float) -> None:
                    duration=round(frame_seconds * 1000), optimize=False)
 
 
+def write_mp4(frames: np.ndarray, path: Path, frame_seconds: float) -> None:
+    """An H.264 MP4 (yuv420p, which every player reads), one frame every ``frame_seconds``.
+    Width and height must be multiples of 16, H.264's macroblock."""
+    _, height, width, _ = frames.shape
+    if width % 16 or height % 16:
+        raise ValueError(f"MP4 frames must be multiples of 16 pixels wide and high, got {width}x{height}")
+    writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=1.0 / frame_seconds, codec="libx264",
+                                         pix_fmt_out="yuv420p", ffmpeg_log_level="error")
+    writer.send(None)  # starts ffmpeg
+    for frame in frames:
+        writer.send(np.ascontiguousarray(frame))
+    writer.close()
+
+
 def render_gait(run_dir: Path, learner: int, out: Path, seconds: float = 10.0, strip_start: float = 2.0,
-                strip_seconds: float = 2.0, snapshot_s: float = 0.1, gif_frame_s: float = 0.04,
-                engine: str | None = None, robot: str = "nominal", view: View = View()) -> dict:
+                strip_seconds: float = 2.0, snapshot_s: float = 0.1, video_frame_s: float = 0.04,
+                engine: str | None = None, robot: str = "nominal", view: View = View(), gif: bool = False) -> dict:
     """Walk the policy for ``seconds``; write ``out``/gait_learnerK_ROBOT.png (snapshots every
-    ``snapshot_s`` from ``strip_start`` for ``strip_seconds``) and .gif (the whole walk).
+    ``snapshot_s`` from ``strip_start`` for ``strip_seconds``) and .mp4 (the whole walk, a
+    frame every ``video_frame_s``), and with ``gif`` the same frames as a .gif.
 
     Checks that OpenGL works before the walk is simulated."""
     if strip_start + strip_seconds > seconds:
@@ -179,14 +196,17 @@ def render_gait(run_dir: Path, learner: int, out: Path, seconds: float = 10.0, s
     gait = record_gait(run_dir, learner, seconds, engine, robot)
     steps = len(gait.qpos)
     strip_steps = snapshot_steps(strip_start, strip_start + strip_seconds, snapshot_s, gait.dt, steps)
-    gif_steps = snapshot_steps(0.0, seconds, gif_frame_s, gait.dt, steps)
+    video_steps = snapshot_steps(0.0, seconds, video_frame_s, gait.dt, steps)
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"gait_learner{learner:02d}_{robot}"
     filmstrip(render_frames(gait.model, gait.qpos[strip_steps], view),
               strip_steps * gait.dt).save(stem.with_suffix(".png"))
-    write_gif(render_frames(gait.model, gait.qpos[gif_steps], view), stem.with_suffix(".gif"),
-              gif_frame_s)
-    return {"png": str(stem.with_suffix(".png")), "gif": str(stem.with_suffix(".gif")),
-            "frames_png": len(strip_steps), "frames_gif": len(gif_steps), "fell": gait.fell,
-            "walked_seconds": gait.seconds, "mean_vx": gait.mean_vx, "robot": robot,
-            "gl": os.environ.get("MUJOCO_GL", "default")}
+    video = render_frames(gait.model, gait.qpos[video_steps], view)
+    write_mp4(video, stem.with_suffix(".mp4"), video_frame_s)
+    written = {"png": str(stem.with_suffix(".png")), "mp4": str(stem.with_suffix(".mp4"))}
+    if gif:
+        write_gif(video, stem.with_suffix(".gif"), video_frame_s)
+        written["gif"] = str(stem.with_suffix(".gif"))
+    return written | {"frames_png": len(strip_steps), "frames_video": len(video_steps), "fell": gait.fell,
+                      "walked_seconds": gait.seconds, "mean_vx": gait.mean_vx, "robot": robot,
+                      "gl": os.environ.get("MUJOCO_GL", "default")}

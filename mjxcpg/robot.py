@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -14,7 +15,8 @@ import numpy as np
 
 from mjxcpg import ik
 
-MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "qrio.xml"
+# Package data, so that an installed (non-editable) mjxcpg finds its robot too.
+MODEL_RESOURCE = importlib.resources.files("mjxcpg") / "models" / "qrio.xml"
 LEG_JOINTS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
 MAX_SLOPE_DEG = 30.0
 
@@ -24,7 +26,8 @@ def load_model(slope_deg: float = 0.0, path: Path | str | None = None,
     """Compile the MJCF and tilt the floor by ``slope_deg`` (positive: uphill along +x)."""
     if not -MAX_SLOPE_DEG <= slope_deg <= MAX_SLOPE_DEG:
         raise ValueError(f"slope must be within +/-{MAX_SLOPE_DEG:g} degrees, got {slope_deg:g}")
-    model = mujoco.MjModel.from_xml_path(str(path or MODEL_PATH))
+    with importlib.resources.as_file(MODEL_RESOURCE) as default_path:
+        model = mujoco.MjModel.from_xml_path(str(path or default_path))
     half = math.radians(-slope_deg) / 2  # rotating the plane about +y by -slope tilts it uphill
     floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
     model.geom_quat[floor] = [math.cos(half), 0.0, math.sin(half), 0.0]

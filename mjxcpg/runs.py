@@ -13,13 +13,14 @@ import json
 import shutil
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjxcpg import config, train
+from mjxcpg import config, events, train
+from mjxcpg.progress import RunProgress
 from mjxcpg.sim import Simulation, make_simulation
 
 
@@ -115,33 +116,50 @@ def restore_state(manager: ocp.CheckpointManager, template: Any, spec: train.Run
 
 
 def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
-            force: bool = False, progress: bool = True) -> tuple[Simulation, train.Task, train.RunState, float]:
-    """Run (or resume) to the end, checkpointing after every chunk; Ctrl-C stops cleanly.
+            force: bool = False, progress: bool = True,
+            tensorboard: bool = True) -> tuple[Simulation, train.Task, train.RunState, float]:
+    """Run (or resume) to the end, checkpointing after every chunk, with a progress line
+    (``progress``) and TensorBoard event files (``tensorboard``, ``mjxcpg.events``).
 
     Returns the simulation, task, final state and the wall time of this session."""
-    from tqdm import tqdm
-
     sim, task, state, manager = prepare(out, spec, engine, resume, force)
-    total = spec.batch * spec.trial.max_trials
-    bar = tqdm(total=total, unit="trial", disable=not progress, dynamic_ncols=True)
     start = time.perf_counter()
-    bar.update(train.progress_counts(task, state.learners)["trials"])
+    try:
+        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard)
+    finally:
+        manager.wait_until_finished()
+    return sim, task, state, time.perf_counter() - start
+
+
+def learn_to_end(out: Path, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
+                 checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool) -> train.RunState:
+    """Chunks until every learner is done; after each, a checkpoint (unless ``checkpoints`` is
+    None), the progress line and the event files of ``out``."""
+    run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
+    book = jax.device_get(state.learners.book)
+    done = train.done_mask(task, state.learners)
+    line = RunProgress(spec.trial, task.dt, sim.engine.substeps, spec.k_s, done, int(np.sum(book.trial)), progress)
+    if run_events is not None:  # a resumed checkpoint may hold trials that a kill kept from the events
+        run_events.write_trials(book, done)
 
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
-        _save_next(manager, new_state, spec)
-        bar.update(counts["trials"] - bar.n)
-        bar.set_postfix(succeeded=f"{counts['succeeded']}/{spec.batch}",
-                        done=counts["done"], steps_per_s=f"{counts['robot_steps_per_s']:.0f}")
+        if checkpoints is not None:
+            _save_next(checkpoints, new_state, spec)
+        book = jax.device_get(new_state.learners.book)
+        done = train.done_mask(task, new_state.learners)
+        measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
+                               counts["robot_steps_per_s"])
+        if run_events is not None:
+            run_events.write_trials(book, done)
+            run_events.write_progress(measures["trials"], {k: v for k, v in measures.items()
+                                                           if k != "trials" and v is not None})
 
     try:
-        state = train.run_until_done(sim, task, spec, state, on_chunk)
-    except KeyboardInterrupt:
-        manager.wait_until_finished()
-        bar.close()
-        raise
-    manager.wait_until_finished()
-    bar.close()
-    return sim, task, state, time.perf_counter() - start
+        return train.run_until_done(sim, task, spec, state, on_chunk)
+    finally:
+        line.close()
+        if run_events is not None:
+            run_events.close()
 
 
 def check_learners(spec: train.RunSpec, learners) -> list[int]:
@@ -167,12 +185,20 @@ def read_config(out: Path) -> tuple[train.RunSpec, dict]:
         raise RunError(f"{config_path} is damaged: {error}") from None
 
 
-def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal"):
+class LoadedRun(NamedTuple):
+    spec: train.RunSpec
+    sim: Simulation
+    task: train.Task
+    state: train.RunState  # the latest checkpoint's
+
+
+def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal") -> LoadedRun:
     """The spec, simulation, task and final state of a finished or interrupted run.
 
     On ``robot="hardware"`` (see ``mjxcpg.hardware``) the learners are the checkpoint's and the
     physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
     """
+    out = Path(out)
     spec, record = read_config(out)
     manager = _manager(out)
     if manager.latest_step() is None:
@@ -186,4 +212,4 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     state = restore_state(manager, train.init_run(recorded, task, spec), spec)
     if robot != "nominal":
         state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
-    return spec, sim, task, state
+    return LoadedRun(spec, sim, task, state)

@@ -8,6 +8,7 @@ import functools
 import time
 from typing import Any, Callable, NamedTuple
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -107,6 +108,7 @@ def learner_sharding(batch: int) -> jax.sharding.NamedSharding:
 
 def shard_learners(tree: Any, batch: int) -> Any:
     """Place every leaf (leading axis = learners) across the devices; a no-op on one device."""
+    chex.assert_tree_shape_prefix(tree, (batch,))  # a leaf without the learner axis would be split wrongly
     return jax.device_put(tree, learner_sharding(batch))
 
 

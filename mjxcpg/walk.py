@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable, NamedTuple
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -75,6 +76,7 @@ def walk_from_standing(sim, feedback: FeedbackFn, fb_params, seconds: float,
                        record_qpos: bool = False) -> Trace:
     """Robots on ``sim`` (a ``Simulation``), one per leading row of ``fb_params``, walk
     ``seconds`` from the standing pose in one batch."""
+    chex.assert_equal_shape_prefix(jax.tree.leaves(fb_params), 1)  # one row per robot, in every leaf
     batch = jax.tree.leaves(fb_params)[0].shape[0]
     run = make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt), feedback,
                     record_qpos)

@@ -4,6 +4,7 @@ its one-line errors.  Small budgets throughout; the paper's budgets run in ``mak
 import json
 import shutil
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -76,8 +77,7 @@ def test_pelvis_force_native_equals_scalar_and_pushes_the_right_way():
             state = step(state)
         plain = sim.engine.step(state, ctrl)  # no force: the pushes must not linger
         ends.append(jax.device_get((state, plain)))
-    for x, y in zip(jax.tree.leaves(ends[0]), jax.tree.leaves(ends[1])):
-        np.testing.assert_array_equal(x, y)
+    chex.assert_trees_all_equal(ends[0], ends[1])
     sensors = make_simulation("mujoco").engine.sensors(ends[0][0])
     qvel = np.asarray(sensors.qvel)
     assert qvel[0, 0] > qvel[2, 0] + 0.05 and qvel[1, 1] > qvel[2, 1] + 0.05

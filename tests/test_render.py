@@ -1,4 +1,4 @@
-"""Headless rendering: a filmstrip PNG and a GIF when OpenGL is there, one line when not.
+"""Headless rendering: a filmstrip PNG, an MP4 and a GIF when OpenGL is there, one line when not.
 
 MuJoCo reads MUJOCO_GL once, at import, and this test process has imported it already, so
 every rendering check runs in a fresh interpreter."""
@@ -8,10 +8,12 @@ import os
 import subprocess
 import sys
 
+import imageio_ffmpeg
+import numpy as np
 import pytest
 
 from learned_run import make_learned_run
-from mjxcpg.render import headless_gl_backend
+from mjxcpg.render import headless_gl_backend, write_mp4
 
 RENDER_SCRIPT = """
 import json, sys
@@ -25,6 +27,7 @@ qpos = np.stack([standing_qpos(model, Layout.of(model), x0, 0.215) for x0 in (0.
 out = Path(sys.argv[1])
 try:
     frames = render.render_frames(model, qpos, render.View(width=64, height=48))
+    render.write_mp4(frames, out / "gait.mp4", 0.04)
 except render.RenderError as error:
     print(json.dumps({"error": str(error)}))
     raise SystemExit(0)
@@ -39,7 +42,14 @@ def _env(**overrides) -> dict:
     return env | overrides
 
 
-def test_render_writes_a_filmstrip_png_and_a_gif(tmp_path):
+def mp4_frames(path) -> tuple[dict, int]:
+    """The video's header (codec, size, frame rate) and its frame count, as ffmpeg reads them."""
+    reader = imageio_ffmpeg.read_frames(str(path))
+    header = next(reader)
+    return header, sum(1 for _ in reader)
+
+
+def test_render_writes_a_filmstrip_png_an_mp4_and_a_gif(tmp_path):
     backend = headless_gl_backend()
     if backend is None:
         pytest.skip("no headless OpenGL here (neither libOSMesa nor a GPU with libEGL)")
@@ -54,6 +64,13 @@ def test_render_writes_a_filmstrip_png_and_a_gif(tmp_path):
     assert result["shape"] == [3, 48, 64, 3] and result["spread"] > 5  # not a blank image
     assert Image.open(tmp_path / "strip.png").size == (128, 96)         # 2 columns, 2 rows
     assert Image.open(tmp_path / "gait.gif").n_frames == 3
+    header, frames = mp4_frames(tmp_path / "gait.mp4")
+    assert (header["codec"], header["size"], header["fps"], frames) == ("h264", (64, 48), 25.0, 3)
+
+
+def test_mp4_frames_are_whole_macroblocks(tmp_path):
+    with pytest.raises(ValueError, match="multiples of 16"):
+        write_mp4(np.zeros((2, 50, 64, 3), np.uint8), tmp_path / "odd.mp4", 0.04)
 
 
 def test_missing_opengl_is_one_line_and_nonzero(tmp_path):
@@ -87,4 +104,7 @@ def test_render_command_on_a_learned_run(tmp_path):
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["gl"] == backend and result["frames_png"] == 20 and not result["fell"]
     assert (tmp_path / "pictures" / "gait_learner00_nominal.png").is_file()
-    assert (tmp_path / "pictures" / "gait_learner00_nominal.gif").is_file()
+    assert not (tmp_path / "pictures" / "gait_learner00_nominal.gif").exists()  # only with --gif
+    header, frames = mp4_frames(tmp_path / "pictures" / "gait_learner00_nominal.mp4")
+    # a frame every 0.04 s from 0 to 4.44 s of the 4.5 s walk; the default view is 240 x 320
+    assert (header["size"], frames, result["frames_video"]) == ((240, 320), 112, 112)

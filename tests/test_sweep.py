@@ -7,12 +7,14 @@ import subprocess
 import sys
 import time
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from conftest import HAND, STEPPING
+from test_monitoring import tensorboard_scalars
 
 from mjxcpg import config, train
 from mjxcpg.cli import main
@@ -27,7 +29,8 @@ def quick_spec():
 @pytest.fixture(scope="module")
 def finished_quick(tmp_path_factory, quick_spec):
     out = tmp_path_factory.mktemp("quick") / "run"
-    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native"]) == 0
+    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native",
+                 "--no-tensorboard"]) == 0
     return out
 
 
@@ -38,9 +41,12 @@ def test_sweep_writes_the_report(finished_quick, quick_spec):
         assert {"k_s", "seed", "succeeded", "trials_to_success", "mean_vx"} <= set(learner)
     assert "| all |" in (finished_quick / "table1.md").read_text()
     assert list(finished_quick.glob("policy_map_*.png")) and list(finished_quick.glob("learning_curve_*.png"))
+    assert not (finished_quick / "tensorboard").exists()  # --no-tensorboard
 
 
 def test_sigkill_then_resume_matches_uninterrupted_run(finished_quick, tmp_path):
+    """The killed run writes TensorBoard events, the uninterrupted one none: the same results
+    show that the events change nothing, and the events hold each trial once."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mjxcpg", "sweep", "--config", "quick", "--out", str(out), "--quiet",
            "--engine", "native"]
@@ -58,6 +64,10 @@ def test_sigkill_then_resume_matches_uninterrupted_run(finished_quick, tmp_path)
     assert json.loads((out / "returns.json").read_text()) == expected
     assert (json.loads((out / "summary.json").read_text())["learners"]
             == json.loads((finished_quick / "summary.json").read_text())["learners"])
+    for k, learner in enumerate(expected):
+        scalars = tensorboard_scalars(out / "tensorboard" / f"learner_{k:02d}_ks{learner['k_s']:g}_seed{learner['seed']}")
+        assert scalars["trial/return"] == [(t + 1, r) for t, r in enumerate(learner["returns"])]
+        assert [v for _, v in scalars["trial/fell"]] == [float(f) for f in learner["falls"]]
 
 
 def test_existing_output_is_never_overwritten(finished_quick, capsys):
@@ -109,9 +119,8 @@ def test_diverged_robot_is_a_counted_fall_and_others_are_untouched(quick_spec):
     assert int(a.learners.book.trial[1]) == 0
     for i in (0, 2):
         np.testing.assert_array_equal(a.physics.physics[i], b.physics.physics[i])
-        for x, y in zip(jax.tree.leaves(jax.tree.map(lambda t: t[i], a.learners)),
-                        jax.tree.leaves(jax.tree.map(lambda t: t[i], b.learners))):
-            np.testing.assert_array_equal(x, y)
+        chex.assert_trees_all_equal(jax.tree.map(lambda t: t[i], a.learners),
+                                    jax.tree.map(lambda t: t[i], b.learners))
 
 
 def test_native_batch_equals_scalar_engine(quick_spec):
@@ -122,8 +131,7 @@ def test_native_batch_equals_scalar_engine(quick_spec):
         run = train.make_chunk(sim, task, 300)(train.init_run(sim, task, quick_spec),
                                                sim.engine.init(sim.qpos0, quick_spec.batch))
         results.append(jax.device_get(run))
-    for x, y in zip(jax.tree.leaves(results[0]), jax.tree.leaves(results[1])):
-        np.testing.assert_array_equal(x, y)
+    chex.assert_trees_all_equal(results[0], results[1])
 
 
 @pytest.mark.parametrize("text, key", [

@@ -1,0 +1,127 @@
+"""What a run reports while it runs: TensorBoard event files (read back with TensorBoard's own
+reader) and the estimate of the time left."""
+
+from collections import Counter
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_file_loader import RawEventFileLoader
+from tensorboard.compat.proto.event_pb2 import Event
+
+from mjxcpg.events import RunEvents, read_scalars
+from mjxcpg.learner import TrialParams
+from mjxcpg.progress import expected_total_trials, remaining_seconds_simulated
+
+
+def tensorboard_scalars(directory: Path) -> dict[str, list[tuple[int, float]]]:
+    """tag -> every (step, value) of the event files in ``directory``, duplicates kept."""
+    found: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(directory.glob("events.out.tfevents.*")):
+        for record in RawEventFileLoader(str(path)).Load():
+            event = Event.FromString(record)
+            for value in event.summary.value:
+                found.setdefault(value.tag, []).append((event.step, value.simple_value))
+    return found
+
+
+class Book(NamedTuple):
+    """The per-trial part of ``learner.Bookkeeping`` that the events read."""
+
+    trial: np.ndarray
+    returns: np.ndarray
+    falls: np.ndarray
+    velocities: np.ndarray
+    mean_abs_a5: np.ndarray
+    sigmas: np.ndarray
+
+
+def _book(trials: list[int], budget: int = 6) -> Book:
+    ramp = np.arange(len(trials) * budget, dtype=np.float32).reshape(len(trials), budget)
+    return Book(trial=np.array(trials), returns=ramp, falls=(ramp % 2 == 1), velocities=ramp / 100,
+                mean_abs_a5=ramp / 10, sigmas=0.5 - ramp / 1000)
+
+
+def test_events_of_a_resumed_run_hold_every_trial_once(tmp_path):
+    first = RunEvents(tmp_path, k_s=(10.0, 0.0), seeds=(0, 1))
+    first.write_trials(_book([2, 3]), done=np.array([False, False]))
+    first.write_progress(5, {"trials_per_s": 2.0})
+    first.close()
+    # a resumed session recomputes from an older checkpoint (1 and 2 trials), then goes on
+    again = RunEvents(tmp_path, k_s=(10.0, 0.0), seeds=(0, 1))
+    again.write_trials(_book([1, 2]), done=np.array([False, False]))
+    again.write_progress(3, {"trials_per_s": 9.0})
+    again.write_trials(_book([4, 3]), done=np.array([True, False]))
+    again.write_progress(7, {"trials_per_s": 3.0})
+    again.close()
+    book = _book([4, 3])
+    for learner, name in enumerate(("learner_00_ks10_seed0", "learner_01_ks0_seed1")):
+        scalars = tensorboard_scalars(tmp_path / "tensorboard" / name)
+        trials = int(book.trial[learner])
+        assert [step for step, _ in scalars["trial/return"]] == list(range(1, trials + 1))
+        assert [v for _, v in scalars["trial/return"]] == list(book.returns[learner][:trials])
+        assert [v for _, v in scalars["trial/fell"]] == [float(f) for f in book.falls[learner][:trials]]
+        assert [v for _, v in scalars["trial/sigma"]] == pytest.approx(book.sigmas[learner][:trials])
+        assert Counter(step for step, _ in scalars["trial/mean_vx"]) == Counter(range(1, trials + 1))
+    assert tensorboard_scalars(tmp_path / "tensorboard" / "run")["progress/trials_per_s"] == [(5, 2.0), (7, 3.0)]
+
+
+def test_a_record_cut_short_ends_its_file(tmp_path):
+    events = RunEvents(tmp_path, k_s=(1.0,), seeds=(0,))
+    events.write_trials(_book([3]), done=np.array([False]))
+    events.close()
+    [path] = (tmp_path / "tensorboard" / "learner_00_ks1_seed0").glob("events.*")
+    path.write_bytes(path.read_bytes()[:-7])  # the last trial's record, torn by a kill
+    assert sorted(read_scalars(path.parent)["trial/return"]) == [1, 2]
+
+
+TRIAL = TrialParams(max_trials=100, trial_seconds=20.0, success_streak=20, trials_after_success=5)
+
+
+def test_expected_total_trials():
+    k_s = np.array([0.0, 0.0, 10.0, 10.0, 0.0, 10.0])
+    trials = np.array([60, 90, 40, 30, 30, 10])
+    streak = np.array([0, 0, 0, 3, 18, 0])
+    trials_to_success = np.array([-1, 85, 35, -1, -1, 4])
+    done = np.array([False, True, True, False, False, False])
+    totals = expected_total_trials(TRIAL, k_s, trials, streak, trials_to_success, done)
+    assert totals[1] == 90 and totals[2] == 40       # finished: their totals
+    assert totals[0] == 90                           # the finished k_s = 0 learner that ran longer
+    # the finished k_s = 10 learner that ran longer says 40, but the 17 fall-free trials it
+    # still needs and the 5 after them come first
+    assert totals[3] == 30 + 17 + 5
+    assert totals[4] == 90                           # as learner 0
+    assert totals[5] == 4 + 5                        # succeeded: exact
+
+
+def test_expected_total_trials_without_longer_peers_doubles_within_the_budget():
+    k_s, streak, tts = np.zeros(3), np.array([0, 0, 15]), np.full(3, -1)
+    done = np.array([True, False, False])
+    totals = expected_total_trials(TRIAL, k_s, np.array([10, 30, 70]), streak, tts, done)
+    assert totals[1] == 60                           # twice its trials so far
+    assert totals[2] == 100                          # twice 70, capped by the budget
+    # never fewer than the fall-free streak (and the trials after it) still needed
+    assert expected_total_trials(TRIAL, k_s[:2], np.array([3, 4]), np.array([0, 1]), tts[:2],
+                                 np.array([False, False]))[1] == 4 + 19 + 5
+
+
+def test_remaining_seconds_count_the_streak_at_full_length():
+    dt = 0.01
+
+    class Bookkeeping(NamedTuple):
+        trial: np.ndarray
+        step: np.ndarray
+        streak: np.ndarray
+        trials_to_success: np.ndarray
+
+    # learner 0: 10 trials of 5 s each, one still running 1 s in; 10 more expected (doubling),
+    # 20 of them needed fall-free: all 10 at 20 s.  Learner 1: succeeded at trial 8, 5 after.
+    book = Bookkeeping(trial=np.array([10, 10]), step=np.array([100, 0]), streak=np.array([0, 2]),
+                       trials_to_success=np.array([-1, 8]))
+    period = np.array([5100, 6000])
+    seconds = remaining_seconds_simulated(TrialParams(max_trials=20, success_streak=20, trials_after_success=5,
+                                                      trial_seconds=20.0), dt, np.zeros(2), book, period,
+                                          np.array([False, False]))
+    assert seconds[0] == pytest.approx(10 * 20.0)
+    assert seconds[1] == pytest.approx(3 * 6.0)      # 13 - 10 trials left at its mean 6 s
