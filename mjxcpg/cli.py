@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import os
 import sys
 from collections.abc import Callable
@@ -70,10 +71,11 @@ def cmd_walk(args: argparse.Namespace) -> dict:
 
 
 def _learn_or_sweep(spec, args, out: Path) -> dict:
+    """Run (or resume) ``spec`` in ``out`` and write its report; the caller holds ``out``'s lock."""
     from mjxcpg import report, runs
 
-    sim, task, state, wall_s = runs.execute(out, spec, args.engine, resume=args.resume,
-                                            force=args.force, progress=not args.quiet)
+    sim, task, state, wall_s = runs.execute(out, spec, args.engine, resume=args.resume, force=args.force,
+                                            progress=not args.quiet, allow_other_code=args.allow_other_code)
     summary = report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary
@@ -82,6 +84,7 @@ def _learn_or_sweep(spec, args, out: Path) -> dict:
 def cmd_learn(args: argparse.Namespace) -> dict:
     from mjxcpg.config import validate
     from mjxcpg.learner import TrialParams
+    from mjxcpg.runs import locked
     from mjxcpg.train import RunSpec
 
     if args.from_run is not None:
@@ -93,18 +96,19 @@ def cmd_learn(args: argparse.Namespace) -> dict:
     spec = validate(RunSpec(k_s=(args.k_s,), seeds=(args.seed,),
                             trial=TrialParams(max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
-    summary = _learn_or_sweep(spec, args, out)
-    learner = summary["learners"][0]
-    returns = json.loads((out / "returns.json").read_text())[0]
-    result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
-              "trials": learner["trials"], "mean_vx": learner["mean_vx"],
-              "final_policy_fell": learner["final_policy_fell"],
-              "policy_input_gradient": learner["policy_input_gradient"],
-              "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
-              "returns": returns["returns"], "falls": returns["falls"]}
-    (out / "learn.json").write_text(json.dumps(result, indent=1))
-    (out / "learning_curve_ks{:g}.png".format(args.k_s)).rename(out / "learning_curve.png")
-    (out / "policy_map_00.png").rename(out / "policy_map.png")
+    with locked(out):
+        summary = _learn_or_sweep(spec, args, out)
+        learner = summary["learners"][0]
+        returns = json.loads((out / "returns.json").read_text())[0]
+        result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
+                  "trials": learner["trials"], "mean_vx": learner["mean_vx"],
+                  "final_policy_fell": learner["final_policy_fell"],
+                  "policy_input_gradient": learner["policy_input_gradient"],
+                  "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
+                  "returns": returns["returns"], "falls": returns["falls"]}
+        (out / "learn.json").write_text(json.dumps(result, indent=1))
+        (out / "learning_curve_ks{:g}.png".format(args.k_s)).rename(out / "learning_curve.png")
+        (out / "policy_map_00.png").rename(out / "policy_map.png")
     return {k: v for k, v in result.items() if k not in ("returns", "falls")}
 
 
@@ -114,8 +118,8 @@ def _learn_online(args: argparse.Namespace) -> dict:
 
     if args.k_s is not None or args.seed is not None:
         raise UserError("--k-s and --seed come from the checkpoint with --from")
-    if args.resume:
-        raise UserError("--resume does not apply to --from; rerun with --force")
+    if args.resume or args.allow_other_code:
+        raise UserError("--resume and --allow-other-code do not apply to --from; rerun with --force")
     source = Path(args.from_run)
     out = Path(args.out or f"runs/online_{source.name}_learner{args.learner}_{args.robot}")
     trials = 400 if args.trials is None else args.trials
@@ -148,11 +152,13 @@ def _choose_headless_gl(argv: list[str]) -> None:
 
 def cmd_sweep(args: argparse.Namespace) -> dict:
     from mjxcpg.config import load_spec
+    from mjxcpg.runs import locked
 
     spec = load_spec(args.config)
     out = Path(args.out or f"runs/{Path(args.config).stem}")
-    summary = _learn_or_sweep(spec, args, out)
-    print((out / "table1.md").read_text())
+    with locked(out):
+        summary = _learn_or_sweep(spec, args, out)
+        print((out / "table1.md").read_text())
     ok = sum(r["succeeded"] for r in summary["learners"])
     return {"out": str(out), "learners": len(summary["learners"]), "succeeded": ok,
             "wall_s": summary["wall_s"], "engine": summary["engine"]}
@@ -273,6 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="run directory (default: runs/...)")
         p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
         p.add_argument("--force", action="store_true", help="replace an existing --out")
+        p.add_argument("--allow-other-code", action="store_true",
+                       help="with --resume: continue a run made by other code (recorded in its config.json)")
         p.add_argument("--quiet", action="store_true", help="no progress bar")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
@@ -384,6 +392,9 @@ def main(argv: list[str] | None = None) -> int:
     _choose_headless_gl(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Orbax logs what its writer threads meet with tracebacks; the errors reach the user as
+    # one line each, from the library.
+    logging.getLogger("absl").setLevel(logging.CRITICAL)
     try:
         result = args.handler(args)
     except (UserError, ValueError, FileNotFoundError) as error:
