@@ -54,7 +54,10 @@ SEED = Range(low=0, high=UINT32_MAX, integer=True)
 def problem(value: object, rule: Range) -> str | None:
     """Why ``value`` is not a number that ``rule`` allows; None when it is one."""
     kinds = (int,) if rule.integer else (int, float)
-    if isinstance(value, bool) or not isinstance(value, kinds) or not math.isfinite(value) or not rule.holds(value):
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        return f"must be {rule.describe()}, got {value!r}"
+    # An int is finite (and may be too large for a float to hold).
+    if (isinstance(value, float) and not math.isfinite(value)) or not rule.holds(value):
         return f"must be {rule.describe()}, got {value!r}"
     return None
 

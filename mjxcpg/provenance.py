@@ -66,8 +66,9 @@ def differences(recorded: dict | None, current: dict) -> list[str]:
     found = []
     for key in COMPARED:
         if key == "versions":
-            found += [f"{name} {recorded[key].get(name)} -> {version}"
-                      for name, version in current[key].items() if recorded[key].get(name) != version]
+            versions = recorded.get(key, {})
+            found += [f"{name} {versions.get(name)} -> {version}"
+                      for name, version in current[key].items() if versions.get(name) != version]
         elif recorded.get(key) != current[key]:
             found.append(f"{key} {str(recorded.get(key))[:12]} -> {current[key][:12]}")
     return found

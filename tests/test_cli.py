@@ -23,6 +23,7 @@ from mjxcpg.cli import build_parser, main
     ["learn", "--seed", "-1"],
     ["learn", "--trials", "0"],
     ["learn", "--trials", "1e3"],
+    ["learn", "--trials", "1" + "0" * 400],
     ["eval", "--run", "x", "--max-slope-deg", "31"],
 ])
 def test_bad_input_is_one_line_and_nonzero(argv, capsys):

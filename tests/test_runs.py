@@ -165,6 +165,7 @@ def test_code_identity_follows_sources_and_model(tmp_path):
     shutil.copytree(provenance.MODEL_DIR, models)
     same = provenance.code_identity(package, models)
     assert provenance.differences(same, provenance.code_identity()) == []
+    assert provenance.differences(None, same) == ["the run has no record of its code"]
     (package / "learner.py").write_text((package / "learner.py").read_text() + "\n# changed\n")
     assert [d.split()[0] for d in provenance.differences(same, provenance.code_identity(package, models))] \
         == ["source_sha256"]
@@ -221,9 +222,9 @@ def _lock_holder(run: Path) -> int | None:
 @pytest.mark.slow
 def test_ten_kills_at_random_moments_end_as_the_uninterrupted_run(tmp_path, capsys):
     """A sweep of the `quick` config with short chunks (many checkpoints) is killed with
-    SIGKILL ten times at seeded random moments, each followed by ``--resume``: half of the
-    kills wait for a checkpoint write to begin, the others fall at a random time (from the
-    start, compilation included).  While a killed run's successor holds the lock, a second
+    SIGKILL ten times at seeded random moments, each followed by ``--resume``: a kill either
+    waits for one of the next checkpoint writes to begin, or falls at a random time from the
+    start (compilation included) but before the run could end.  While a killed run's successor holds the lock, a second
     sweep on its directory is refused.  The final results equal, byte for byte, those of the
     same config run without a kill.  Several minutes on 2 cores."""
     spec = config.spec_to_dict(config.load_spec("quick")) | {"chunk_seconds": 0.5}
