@@ -52,6 +52,8 @@ def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot
     reward = reward or ("estimate" if robot == "hardware" else "truth")
     if reward not in REWARD_SOURCES:
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
+    source_spec, _ = runs.read_config(source)  # a bad source is refused before ``out`` is made
+    runs.check_learners(source_spec, [learner])
     with runs.locked(out):
         if runs.run_files(out):
             if not force:
@@ -66,7 +68,6 @@ def _learn_online_locked(source: Path, learner: int, out: Path, trials: int, rob
     from tqdm import tqdm
 
     source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
-    runs.check_learners(source_spec, [learner])
     spec = continued_spec(source_spec, learner, trials, trial_seconds)
     task = train.make_task(sim, spec)
     if reward == "estimate":
