@@ -3,12 +3,13 @@ notebooks (README, "Python API").  ``import mjxcpg`` then ``mjxcpg.sweep(...)``,
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Callable, Iterable
 
 from mjxcpg import evaluate as evaluation
 from mjxcpg import report, runs, train, transfer
-from mjxcpg.config import load_spec, validate
+from mjxcpg.config import load_spec, spec_to_dict, validate
 from mjxcpg.evaluate import EvalParams
 from mjxcpg.runs import load_run
 from mjxcpg.train import RunSpec
@@ -19,20 +20,37 @@ EVALUATIONS = ("return_map", "slopes", "pushes", "transfer")  # transfer: on the
 
 
 def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = None, resume: bool = False,
-          force: bool = False, progress: bool = True, tensorboard: bool = True) -> dict:
+          force: bool = False, progress: bool = True, tensorboard: bool = True,
+          allow_other_code: bool = False) -> dict:
     """Run the learners of ``config`` (a config's name, a .toml/.json path or a ``RunSpec``)
     in lockstep until each has met the success criterion or used its budget, into the run
     directory ``out`` (checkpoints, TensorBoard events, reports: README, "Learning").
+
+    ``out`` is locked for the run (``runs.locked``); ``allow_other_code`` lets ``resume``
+    continue a run that other code made, and records that it did.
 
     Returns what ``out/summary.json`` holds (per learner: k_s, seed, succeeded,
     trials_to_success, mean_vx, ...), with ``wall_s``, the wall time of this session."""
     spec = validate(config) if isinstance(config, RunSpec) else load_spec(str(config))
     out = Path(out)
-    sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
-                                            tensorboard=tensorboard)
-    summary = report.write_report(out, spec, sim, task, state)
+    with runs.locked(out):
+        if resume and runs.is_finished(out):
+            return finished_summary(out, spec)
+        sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
+                                                tensorboard=tensorboard, allow_other_code=allow_other_code)
+        summary = report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary
+
+
+def finished_summary(out: Path, spec: RunSpec) -> dict:
+    """A resumed run that had already finished: its results as they are, ``wall_s`` 0
+    (``make run`` a second time reprints Table 1 and exits 0)."""
+    saved, _ = runs.read_config(out)
+    if spec_to_dict(saved) != spec_to_dict(spec):
+        raise runs.RunError(f"{out} holds a finished run of another config; use a new --out")
+    runs.notice(f"{out} holds a finished run; its results are kept as they are")
+    return json.loads((out / "summary.json").read_text()) | {"wall_s": 0.0}
 
 
 def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None, engine: str | None = None,
