@@ -16,6 +16,7 @@ from pathlib import Path
 
 import mjxcpg
 from mjxcpg import checks
+from mjxcpg.files import write_text_atomic
 
 
 class UserError(Exception):
@@ -95,18 +96,24 @@ def cmd_learn(args: argparse.Namespace) -> dict:
                             trial=TrialParams(max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
     summary = _learn_or_sweep(spec, args, out)
+    learn_path = out / "learn.json"
     with locked(out):  # the run's files, renamed and added to
-        learner = summary["learners"][0]
-        returns = json.loads((out / "returns.json").read_text())[0]
-        result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
-                  "trials": learner["trials"], "mean_vx": learner["mean_vx"],
-                  "final_policy_fell": learner["final_policy_fell"],
-                  "policy_input_gradient": learner["policy_input_gradient"],
-                  "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
-                  "returns": returns["returns"], "falls": returns["falls"]}
-        (out / "learn.json").write_text(json.dumps(result, indent=1))
-        (out / "learning_curve_ks{:g}.png".format(args.k_s)).rename(out / "learning_curve.png")
-        (out / "policy_map_00.png").rename(out / "policy_map.png")
+        if learn_path.is_file():  # a finished run, resumed: its record stays as it is
+            result = json.loads(learn_path.read_text())
+        else:
+            learner = summary["learners"][0]
+            returns = json.loads((out / "returns.json").read_text())[0]
+            result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
+                      "trials": learner["trials"], "mean_vx": learner["mean_vx"],
+                      "final_policy_fell": learner["final_policy_fell"],
+                      "policy_input_gradient": learner["policy_input_gradient"],
+                      "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
+                      "returns": returns["returns"], "falls": returns["falls"]}
+            for name, short in ((f"learning_curve_ks{args.k_s:g}.png", "learning_curve.png"),
+                                ("policy_map_00.png", "policy_map.png")):
+                if (out / name).is_file():
+                    (out / name).replace(out / short)
+            write_text_atomic(learn_path, json.dumps(result, indent=1))
     return {k: v for k, v in result.items() if k not in ("returns", "falls")}
 
 
@@ -382,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("absl").setLevel(logging.CRITICAL)
     try:
         result = args.handler(args)
-    except (UserError, ValueError, FileNotFoundError) as error:
+    except (UserError, ValueError, OSError) as error:  # OSError: a full disk, a missing file, ...
         print(f"mjxcpg: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -53,6 +53,10 @@ def _check(value: Any, annotation: Any, key: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"{key}: expected a number, got {value!r}")
         return float(value)
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{key}: expected true or false, got {value!r}")
+        return value
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"{key}: expected an integer, got {value!r}")
@@ -173,6 +177,22 @@ def load_spec(name_or_path: str) -> RunSpec:
 
 def spec_to_dict(spec: RunSpec) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(spec)))
+
+
+# Keys added to the spec after runs had been recorded, each with the value that a run
+# recorded without it had: such a run's record is the spec without these keys.
+ADDED_KEYS = {("learner", "unit_slope"): False}
+
+
+def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
+    """``spec`` as code from before ``ADDED_KEYS`` recorded it, if it could have (every
+    added key at its old value); empty otherwise."""
+    data = spec_to_dict(spec)
+    if any(data[section][key] != value for (section, key), value in ADDED_KEYS.items()):
+        return []
+    for section, key in ADDED_KEYS:
+        del data[section][key]
+    return [data]
 
 
 def spec_from_dict(data: dict) -> RunSpec:

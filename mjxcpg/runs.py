@@ -129,10 +129,16 @@ def is_finished(out: Path) -> bool:
 
 # ---------------------------------------------------------------- checkpoints
 
-def _fingerprint(spec: train.RunSpec) -> np.ndarray:
+def _fingerprint(spec_dict: dict) -> np.ndarray:
     """The config's identity, stored in every checkpoint beside the state."""
-    text = json.dumps(config.spec_to_dict(spec), sort_keys=True).encode()
+    text = json.dumps(spec_dict, sort_keys=True).encode()
     return np.frombuffer(hashlib.sha256(text).digest(), np.uint8)
+
+
+def _accepted_fingerprints(spec: train.RunSpec) -> list[np.ndarray]:
+    """The fingerprints a checkpoint of ``spec`` may hold: this code's, and earlier code's
+    (``config.earlier_spec_dicts``)."""
+    return [_fingerprint(d) for d in [config.spec_to_dict(spec), *config.earlier_spec_dicts(spec)]]
 
 
 def _leaves_sha256(leaves: dict) -> np.ndarray:
@@ -150,7 +156,7 @@ def _leaves(state: Any, spec: train.RunSpec) -> dict:
     leaves (MJX's data holds some, e.g. ``act`` of a model without actuator dynamics) are
     left out: orbax cannot save them, and ``restore_state`` takes them from its template."""
     leaves = {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state)) if np.size(x) > 0}
-    leaves["config_sha256"] = _fingerprint(spec)
+    leaves["config_sha256"] = _fingerprint(config.spec_to_dict(spec))
     return leaves | {"leaves_sha256": _leaves_sha256(leaves)}
 
 
@@ -232,7 +238,9 @@ def restore_state(manager: ocp.CheckpointManager, template: Any,
     expected = _leaves(template, spec)
     expected.pop("leaves_sha256")
     leaves.pop("leaves_sha256", None)
-    if not np.array_equal(leaves.pop("config_sha256", None), expected.pop("config_sha256")):
+    expected.pop("config_sha256")
+    stored = leaves.pop("config_sha256", None)
+    if not any(np.array_equal(stored, f) for f in _accepted_fingerprints(spec)):
         raise RunError("the checkpoint was written by another config")
     if leaves.keys() != expected.keys() or any(
             leaves[k].shape != v.shape or leaves[k].dtype != v.dtype for k, v in expected.items()):
@@ -273,8 +281,8 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
     fresh = True
     if run_files(out):
         if resume and config_path.is_file():
-            record = json.loads(config_path.read_text())
-            if record["spec"] != config.spec_to_dict(spec):
+            saved, record = read_config(out)
+            if saved != spec:
                 raise RunError(f"{out} holds a run of another config; use a new --out")
             if is_finished(out):
                 raise RunError(f"{out} holds a finished run (summary.json); its results stay as they are")

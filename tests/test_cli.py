@@ -90,3 +90,23 @@ def test_bad_config_value_is_one_line_and_exit_2(tmp_path, text, key, capsys):
     assert err.startswith(f"mjxcpg: error: {key}: must be") and "\n" not in err
     assert not (tmp_path / "run").exists()
 
+
+
+def test_non_boolean_switch_in_a_config_is_one_line_and_exit_2(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text('k_s = [1.0]\nseeds = [0]\n[learner]\nunit_slope = "false"\n')
+    assert main(["sweep", "--config", str(path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "mjxcpg: error: learner.unit_slope: expected true or false, got 'false'"
+
+
+def test_learn_resumed_when_finished_keeps_its_record(tmp_path, capsys):
+    """``learn --resume`` on a finished learner: exit 0 and no file changed."""
+    out = tmp_path / "learn"
+    argv = ["learn", "--k-s", "10", "--seed", "0", "--trials", "2", "--out", str(out), "--quiet",
+            "--no-tensorboard"]
+    assert main(argv) == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
+    assert (out / "learn.json").is_file() and (out / "policy_map.png").is_file()
+    assert main(argv + ["--resume"]) == 0
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"} == before

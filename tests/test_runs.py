@@ -2,7 +2,9 @@
 silently wrong.  Every interrupted or damaged run must end exactly as the uninterrupted
 `quick` sweep (``finished_quick``) did."""
 
+import dataclasses
 import errno
+import hashlib
 import json
 import os
 import shutil
@@ -82,6 +84,25 @@ def test_torn_latest_checkpoint_falls_back_and_ends_as_uninterrupted(finished_qu
     assert f"checkpoint {newest} is damaged" in notices[0] and f"using checkpoint {previous}" in notices[0]
     assert (run / runs.DAMAGED_CHECKPOINTS / str(newest)).is_dir()  # kept, out of the way
     assert_same_results(run, finished_quick)
+
+
+def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, tmp_path):
+    """A run whose config.json was written before ``learner.unit_slope`` existed (the key
+    absent, its old behaviour False): resumed, it ends as the uninterrupted run; and a
+    checkpoint fingerprinted without the key is accepted, the fingerprint built here by hand."""
+    run = unfinished_copy(finished_quick, tmp_path)
+    record = json.loads((run / "config.json").read_text())
+    del record["spec"]["learner"]["unit_slope"]
+    (run / "config.json").write_text(json.dumps(record))
+    assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
+    assert_same_results(run, finished_quick)
+    spec = config.load_spec("quick")
+    old = config.spec_to_dict(spec)
+    del old["learner"]["unit_slope"]
+    by_hand = np.frombuffer(hashlib.sha256(json.dumps(old, sort_keys=True).encode()).digest(), np.uint8)
+    assert any(np.array_equal(by_hand, f) for f in runs._accepted_fingerprints(spec))
+    with_slope = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, unit_slope=True))
+    assert config.earlier_spec_dicts(with_slope) == []   # earlier code could not have run it
 
 
 def test_corrupted_checkpoint_is_caught_by_its_sha256(finished_quick, tmp_path):
