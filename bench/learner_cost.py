@@ -17,8 +17,11 @@ import time
 
 import jax
 
-from mjxcpg import bench, engines, train, xla
-from mjxcpg.sim import make_simulation
+from mjxcpg import bench
+from mjxcpg.physics import engines
+from mjxcpg.training import train
+from mjxcpg.jaxutil import xla
+from mjxcpg.control.sim import make_simulation
 
 
 class NoPhysics(engines.NativeEngine):

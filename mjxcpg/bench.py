@@ -18,7 +18,7 @@ A robot-step is one physics step of one robot.  The workloads:
 the C engines, the host callback cost.  Compile time is reported apart and never counted
 in a rate.  Each rate is the median over timed calls after a warm-up call.
 
-Two test models: our robot (``mjxcpg/models/qrio.xml``) and MJX's own benchmark humanoid
+Two test models: our robot (``mjxcpg/robots/qrio/qrio.xml``) and MJX's own benchmark humanoid
 (``test_data/humanoid/humanoid.xml`` in the ``mujoco-mjx`` package, loaded as shipped and
 started from ``qpos0``), whose figures compare with published MJX numbers.
 """
@@ -45,8 +45,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import engines, train, xla
-from mjxcpg.sim import Simulation, make_simulation
+from mjxcpg.physics import engines
+from mjxcpg.training import train
+from mjxcpg.jaxutil import xla
+from mjxcpg.control.sim import Simulation, make_simulation
 
 MODELS = ("qrio", "humanoid")
 WORKLOADS = ("physics", "full")

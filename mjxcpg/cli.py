@@ -35,7 +35,7 @@ def _positive_seconds(text: str) -> float:
 
 
 def _slope(text: str) -> float:
-    from mjxcpg.robot import MAX_SLOPE_DEG
+    from mjxcpg.physics.model import MAX_SLOPE_DEG
 
     value = float(text)
     if not -MAX_SLOPE_DEG <= value <= MAX_SLOPE_DEG:
@@ -46,15 +46,15 @@ def _slope(text: str) -> float:
 def cmd_walk(args: argparse.Namespace) -> dict:
     import jax.numpy as jnp
 
-    from mjxcpg import walk
-    from mjxcpg.controller import roll_rate_feedback
-    from mjxcpg.sim import make_simulation
+    from mjxcpg.control import walk
+    from mjxcpg.control.controller import roll_rate_feedback
+    from mjxcpg.control.sim import make_simulation
 
     if args.checkpoint is not None:
         import jax
 
-        from mjxcpg.learner import policy_mean_feedback
-        from mjxcpg.runs import check_learners, load_run
+        from mjxcpg.learning.learner import policy_mean_feedback
+        from mjxcpg.training.runs import check_learners, load_run
 
         spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
         check_learners(spec, [args.learner])
@@ -82,9 +82,9 @@ def _learn_or_sweep(spec, args, out: Path) -> dict:
 
 
 def cmd_learn(args: argparse.Namespace) -> dict:
-    from mjxcpg.config import validate
-    from mjxcpg.learner import TrialParams
-    from mjxcpg.train import RunSpec
+    from mjxcpg.training.config import validate
+    from mjxcpg.learning.learner import TrialParams
+    from mjxcpg.training.train import RunSpec
 
     if args.from_run is not None:
         return _learn_online(args)
@@ -111,8 +111,8 @@ def cmd_learn(args: argparse.Namespace) -> dict:
 
 
 def _learn_online(args: argparse.Namespace) -> dict:
-    """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.online)."""
-    from mjxcpg import online
+    """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.training.online)."""
+    from mjxcpg.training import online
 
     if args.k_s is not None or args.seed is not None:
         raise UserError("--k-s and --seed come from the checkpoint with --from")
@@ -127,7 +127,7 @@ def _learn_online(args: argparse.Namespace) -> dict:
 
 
 def cmd_render(args: argparse.Namespace) -> dict:
-    from mjxcpg import render
+    from mjxcpg.evaluation import render
 
     out = Path(args.out or Path(args.run) / "render")
     try:
@@ -141,7 +141,7 @@ def _choose_headless_gl(argv: list[str]) -> None:
     """Before MuJoCo is imported: give ``render`` a headless OpenGL unless MUJOCO_GL is set."""
     if argv[:1] != ["render"] or "MUJOCO_GL" in os.environ or "mujoco" in sys.modules:
         return
-    from mjxcpg.render import headless_gl_backend
+    from mjxcpg.evaluation.render import headless_gl_backend
 
     backend = headless_gl_backend()
     if backend is not None:
@@ -149,7 +149,7 @@ def _choose_headless_gl(argv: list[str]) -> None:
 
 
 def cmd_sweep(args: argparse.Namespace) -> dict:
-    from mjxcpg.config import load_spec
+    from mjxcpg.training.config import load_spec
 
     spec = load_spec(args.config)
     out = Path(args.out or f"runs/{Path(args.config).stem}")
@@ -161,7 +161,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
 
 
 def cmd_controls(args: argparse.Namespace) -> dict:
-    from mjxcpg import controls
+    from mjxcpg.training import controls
 
     run_dir = Path(args.run)
     if not (run_dir / "summary.json").is_file():
@@ -175,7 +175,7 @@ def cmd_controls(args: argparse.Namespace) -> dict:
 
 
 def cmd_transfer(args: argparse.Namespace) -> dict:
-    from mjxcpg import transfer
+    from mjxcpg.evaluation import transfer
 
     if not (Path(args.run) / "summary.json").is_file():
         raise UserError(f"{args.run} holds no finished run (no summary.json); run the sweep first")
@@ -241,9 +241,9 @@ def _print_result(result: dict, as_json: bool) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from mjxcpg.config import config_names
-    from mjxcpg.engines import ENGINES
-    from mjxcpg.sim import ROBOTS
+    from mjxcpg.training.config import config_names
+    from mjxcpg.physics.engines import ENGINES
+    from mjxcpg.control.sim import ROBOTS
 
     parser = _Parser(prog="mjxcpg", description=__doc__)
     parser.add_argument("--version", action="version", version=f"%(prog)s {mjxcpg.__version__}")
@@ -397,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def entry(argv: list[str] | None = None) -> int:
     """The ``mjxcpg`` program: ``main`` in a process whose XLA:CPU is set up for this library."""
-    from mjxcpg import xla
+    from mjxcpg.jaxutil import xla
 
     xla.one_cpu_thread()
     return main(argv)

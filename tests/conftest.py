@@ -21,12 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxcpg import actor_critic as ac
-from mjxcpg import walk
-from mjxcpg.controller import roll_rate_feedback
-from mjxcpg.learner import policy_mean_feedback
-from mjxcpg.sim import make_simulation
-from mjxcpg.train import RunSpec, make_task
+from mjxcpg.learning import actor_critic as ac
+from mjxcpg.control import walk
+from mjxcpg.control.controller import roll_rate_feedback
+from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.training.train import RunSpec, make_task
 
 WALK_SECONDS = 20.0
 HAND, STEPPING, LEARNED = 0, 1, 2            # robots of the session walks

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxcpg import cpg
+from mjxcpg.control import cpg
 
 DT = 1e-4
 

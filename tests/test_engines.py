@@ -22,12 +22,15 @@ import orbax.checkpoint as ocp
 import pytest
 from conftest import HAND, LEARNED, load_learned_policy
 
-from mjxcpg import engines, runs, walk
+from mjxcpg.physics import engines
+from mjxcpg.training import runs
+from mjxcpg.control import walk
 from mjxcpg.cli import main
-from mjxcpg.config import load_spec
-from mjxcpg.controller import control_step, joint_targets, roll_rate_feedback
-from mjxcpg.robot import MODEL_RESOURCE, Layout, observe
-from mjxcpg.sim import make_simulation
+from mjxcpg.training.config import load_spec
+from mjxcpg.control.controller import control_step, joint_targets, roll_rate_feedback
+from mjxcpg.physics.model import Layout, observe
+from mjxcpg.robots.qrio import QRIO
+from mjxcpg.control.sim import make_simulation
 
 SEED = 0
 ONE_STEP_STATES = 100
@@ -295,7 +298,7 @@ def test_stored_policy_was_learned_on_this_model():
     tests/data/make_learned_policy.py when the model changes)."""
     record = load_learned_policy()
     assert record["command"].startswith("mjxcpg learn --k-s 10 --seed 1 --engine native")
-    assert record["model_sha256"] == hashlib.sha256(MODEL_RESOURCE.read_bytes()).hexdigest(), (
+    assert record["model_sha256"] == hashlib.sha256(QRIO.mjcf_resource().read_bytes()).hexdigest(), (
         f"tests/data policy was learned at {record['git_commit']} on another model")
     assert record["trials_to_success"] is not None and record["trials_to_success"] > 0
     assert len(record["policy_mean_weights"]) == record["basis_grid"] ** 2

@@ -16,9 +16,9 @@ import pytest
 from conftest import HAND, STEPPING
 from test_monitoring import tensorboard_scalars
 
-from mjxcpg import config, train
+from mjxcpg.training import config, train
 from mjxcpg.cli import main
-from mjxcpg.sim import make_simulation
+from mjxcpg.control.sim import make_simulation
 
 
 @pytest.fixture(scope="module")

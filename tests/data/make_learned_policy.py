@@ -29,8 +29,8 @@ import mujoco
 import numpy as np
 
 from mjxcpg.cli import main as mjxcpg_main
-from mjxcpg.robot import MODEL_RESOURCE
-from mjxcpg.runs import load_run
+from mjxcpg.robots.qrio import QRIO
+from mjxcpg.training.runs import load_run
 
 POLICY_PATH = Path(__file__).resolve().parent / "learned_policy_ks10_seed1.json"
 K_S, SEED, ENGINE, TRIALS = 10.0, 1, "native", 200
@@ -62,7 +62,7 @@ def learn_and_export(run_dir: Path, out: Path = POLICY_PATH) -> dict:
     return record
 
 
-def model_fingerprint(path=MODEL_RESOURCE) -> str:
+def model_fingerprint(path=QRIO.mjcf_resource()) -> str:
     """SHA-256 of the robot's MJCF: the tests refuse a policy learned on another model."""
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
