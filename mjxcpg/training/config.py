@@ -3,6 +3,15 @@ of the user's) or JSON, validated.
 
 An unknown key, a value of the wrong type or an impossible value is a ``ValueError`` whose
 one-line message names the key.
+
+The learners are either spelled out, ``k_s`` and ``seeds`` (one pair per learner), or
+generated (``expand_learners``): ``k_s_values`` with ``seeds_per_k_s`` learners per value
+(default 1), seeds counting up from ``first_seed`` (default 0), and optionally ``learners``,
+the count the sequence is repeated (and cut) to.  "10 seeds per k_s from seed 100":
+
+    k_s_values = [0.0, 1.0, 2.0]
+    seeds_per_k_s = 10
+    first_seed = 100
 """
 
 from __future__ import annotations
@@ -100,6 +109,46 @@ def validate(spec: RunSpec) -> RunSpec:
     return spec
 
 
+GENERATOR_KEYS = ("k_s_values", "seeds_per_k_s", "first_seed", "learners")
+
+
+def _whole(data: dict, key: str, default: int, minimum: int) -> int:
+    value = data.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{key}: expected an integer, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{key}: must be at least {minimum}")
+    return value
+
+
+def expand_learners(data: dict) -> dict:
+    """``data`` with the generator keys (``GENERATOR_KEYS``) replaced by the ``k_s`` and
+    ``seeds`` lists they stand for; ``data`` itself if it has none.
+
+    Each of ``k_s_values`` appears ``seeds_per_k_s`` times in a row; the whole sequence repeats
+    until there are ``learners`` entries (default: one pass); learner i gets seed
+    ``first_seed + i``.
+    """
+    given = [key for key in GENERATOR_KEYS if key in data]
+    if not given:
+        return data
+    if "k_s_values" not in data:
+        raise ValueError(f"{given[0]}: needs k_s_values")
+    for key in ("k_s", "seeds"):
+        if key in data:
+            raise ValueError(f"{key}: give either k_s and seeds or k_s_values, not both")
+    values = _check(data["k_s_values"], tuple[float, ...], "k_s_values")
+    if not values:
+        raise ValueError("k_s_values: needs at least one value")
+    per_value = _whole(data, "seeds_per_k_s", 1, 1)
+    first_seed = _whole(data, "first_seed", 0, 0)
+    one_pass = [k for k in values for _ in range(per_value)]
+    count = _whole(data, "learners", len(one_pass), 1)
+    k_s = [one_pass[i % len(one_pass)] for i in range(count)]
+    rest = {key: value for key, value in data.items() if key not in GENERATOR_KEYS}
+    return {"k_s": k_s, "seeds": list(range(first_seed, first_seed + count)), **rest}
+
+
 def config_names() -> list[str]:
     """The configs that ship with mjxcpg, by name."""
     return sorted(p.name.removesuffix(".toml") for p in CONFIG_DIR.iterdir() if p.name.endswith(".toml"))
@@ -117,7 +166,7 @@ def load_spec(name_or_path: str) -> RunSpec:
         data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f"{name_or_path}: not valid {suffix[1:].upper()}: {error}") from None
-    return validate(from_dict(RunSpec, data))
+    return validate(from_dict(RunSpec, expand_learners(data)))
 
 
 def spec_to_dict(spec: RunSpec) -> dict:
