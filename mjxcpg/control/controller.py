@@ -13,27 +13,37 @@ import jax.numpy as jnp
 
 from mjxcpg.control import cpg, ik
 from mjxcpg.physics.model import Layout, Observation
+from mjxcpg.robots.description import RobotDescription
+from mjxcpg.robots.qrio import QRIO
 
 
 @dataclasses.dataclass(frozen=True)
 class ControllerParams:
-    """Controller constants.  CPG amplitudes and reflex gains are the paper's.
+    """Controller constants.  CPG amplitudes and reflex gains are the paper's; the defaults of
+    the robot-specific ones (time constants, A_x, A_z, Z_0) are QRIO's gait (``of``).
 
     ``vsr_sign`` fixes the sign convention of theta_roll in eq (9), which the paper does not
     print: +1 uses the right-handed roll about the forward axis (left side up is positive).
     """
 
     cpg: cpg.CPGParams = cpg.CPGParams()
-    amp_x: float = 0.015            # A_x (m), eqs 6-7
-    amp_z: float = 0.005            # A_z (m), eqs 4-5
+    amp_x: float = QRIO.gait.amp_x  # A_x (m), eqs 6-7
+    amp_z: float = QRIO.gait.amp_z  # A_z (m), eqs 4-5
     x0: float = 0.0                 # X_0 (m): ankles under the hips
-    z0: float = 0.215               # Z_0 (m): hip-to-ankle leg length
+    z0: float = QRIO.gait.z0        # Z_0 (m): hip-to-ankle leg length
     h_er: float = 0.4               # extensor response gain, eq 9
     h_vsr: float = 0.3              # vestibulo-spinal reflex gain, eq 9 (paper: 1.8; see docs)
     vsr_sign: float = -1.0
     control_dt: float = 0.008       # control period (s)
     cpg_substeps: int = 8           # Euler steps of the CPG per control period
     hand_gain: float = 1.0          # K of the hand-designed a_5 = K d(theta_roll)/dt
+
+    @classmethod
+    def of(cls, robot: RobotDescription, **overrides) -> "ControllerParams":
+        """The default controller with ``robot``'s gait constants (``RobotDescription.gait``)."""
+        gait = robot.gait
+        cpg_params = dataclasses.replace(cpg.CPGParams(), tau=gait.tau, tau_adapt=gait.tau_adapt)
+        return cls(**{"cpg": cpg_params, "amp_x": gait.amp_x, "amp_z": gait.amp_z, "z0": gait.z0, **overrides})
 
 
 def reflex_feedback(params: ControllerParams, layout: Layout, obs: Observation) -> jax.Array:

@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxcpg.robots.qrio import QRIO
+
 
 def _inhibition_matrix() -> np.ndarray:
     """w[i, j]: inhibitory weight from neuron j to neuron i (1-based in the paper)."""
@@ -36,10 +38,11 @@ def _inhibition_matrix() -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class CPGParams:
-    """Oscillator constants; defaults are the paper's (Velocity Control section)."""
+    """Oscillator constants; defaults are the paper's (Velocity Control section), the time
+    constants through QRIO's description (``mjxcpg.robots``), which scales them to other robots."""
 
-    tau: float = 0.105
-    tau_adapt: float = 0.132
+    tau: float = QRIO.gait.tau
+    tau_adapt: float = QRIO.gait.tau_adapt
     bias: float = 2.08
     adaptation: float = 2.5
     weights: tuple[tuple[float, ...], ...] = tuple(map(tuple, _inhibition_matrix()))

@@ -12,6 +12,8 @@ from mjxcpg.control import ik
 from mjxcpg.control.controller import ControllerParams
 from mjxcpg.physics import engines, hardware
 from mjxcpg.physics.model import Layout, load_model
+from mjxcpg.robots.description import RobotDescription
+from mjxcpg.robots.qrio import QRIO
 
 ROBOTS = ("nominal", "hardware")  # the simulated robot; see mjxcpg.physics.hardware
 
@@ -31,8 +33,10 @@ class Simulation:
 
 def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
                     params: ControllerParams | None = None,
-                    physics_dt: float | None = None, robot: str = "nominal") -> Simulation:
-    """Load the model, check the control period against the physics step, build the engine.
+                    physics_dt: float | None = None, robot: str = "nominal",
+                    description: RobotDescription = QRIO) -> Simulation:
+    """Load the model of ``description``, check the control period against the physics step,
+    build the engine.
 
     ``robot="hardware"`` simulates the perturbed robot of ``mjxcpg.physics.hardware`` (its model,
     latency and sensor noise); the layout, hence the controller, stays the nominal one's.
@@ -40,19 +44,20 @@ def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; choose one of {', '.join(ROBOTS)}")
     params = params or ControllerParams()
-    model = load_model(slope_deg, timestep=physics_dt)
+    model = load_model(slope_deg, timestep=physics_dt, robot=description)
     substeps = params.control_dt / model.opt.timestep
     if substeps < 1 or abs(substeps - round(substeps)) > 1e-6:
         raise ValueError(f"control period {params.control_dt} s is not a whole number of "
                          f"physics steps of {model.opt.timestep} s")
-    layout = Layout.of(model)
+    layout = Layout.of(model, description)
     qpos0 = standing_qpos(model, layout, params.x0, params.z0)
     name = engine or engines.default_engine()
     if robot == "hardware":
         model = hardware.perturbed_model(model)
-        physics_engine = hardware.HardwareEngine(engines.make_engine(name, model, round(substeps)))
+        physics_engine = hardware.HardwareEngine(
+            engines.make_engine(name, model, round(substeps), description.pelvis), robot=description)
     else:
-        physics_engine = engines.make_engine(name, model, round(substeps))
+        physics_engine = engines.make_engine(name, model, round(substeps), description.pelvis)
     return Simulation(model=model, layout=layout, params=params, engine=physics_engine, qpos0=qpos0)
 
 

@@ -40,6 +40,7 @@ from mjxcpg.jaxutil.pytree import tree_where
 from mjxcpg.control.controller import ControllerParams, control_step, hand_feedback, joint_targets
 from mjxcpg.physics.model import Layout, Observation, Sensors, observe
 from mjxcpg.control.walk import has_fallen
+from mjxcpg.robots.qrio import QRIO
 
 
 ACTORS = ("policy", "zero", "hand")  # TrialParams.actor
@@ -50,7 +51,7 @@ class TrialParams:
     """Reward (eq 27) and trial protocol (Experiments section)."""
 
     k_h: float = 10.0                     # height reward gain
-    h_ref: float = 0.272                  # h', m
+    h_ref: float = QRIO.gait.h_ref        # h', m (the robot's: RobotDescription.gait)
     fall_reward: float = -1.0
     trial_seconds: float = 20.0
     hand_seconds: tuple[float, float] = (1.0, 3.0)  # hand-over time, uniform in this range
