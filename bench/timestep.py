@@ -1,4 +1,4 @@
-"""Choose the physics step and the control period by measurement (issue 5, deliverable 3).
+"""Choose the physics step and the control period by measurement.
 
 For each (physics step, control period) on a ladder, and for the same pair halved, this
 measures on the native engine:

@@ -327,8 +327,8 @@ def quick_mjx_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_mjx_runs_the_quick_sweep(quick_mjx_run):
-    """The MJX path runs the `quick` config end to end on the CPU (minutes: two large MJX
-    compiles, the learning chunk and the report's walk), and its bookkeeping adds up: one
+    """The MJX path runs the `quick` config end to end on the CPU (two large MJX compiles, the
+    learning chunk and the report's walk), and its bookkeeping adds up: one
     learner per (k_s, seed) of the config, trial counts within the budget, success only after
     ``success_streak`` successive trials without a fall, Table 1 totals matching summary.json.
     Outcomes are not compared with the C engines' run of `quick`: the physics differ."""

@@ -4,7 +4,7 @@ Six neurons: 1-2 form the stepping oscillator (leg length, Z), 3-6 the quad-elem
 oscillator whose (q5 - q6) drives the legs fore and aft (X).  Everything here is pure JAX
 for one robot; ``vmap`` it over a batch.
 
-Corrections to the printed equations (see DESIGN.md):
+Corrections to the printed equations:
 
 * eq (1) carries the neuron index i throughout: tau dz_i/dt = -z_i - sum_j w_ij q_j
   - gamma z'_i + c + a_i;

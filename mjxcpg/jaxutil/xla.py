@@ -2,9 +2,9 @@
 
 XLA:CPU hands small fused element-wise and reduction kernels to the YNNPACK and XNNPACK
 libraries.  At this project's sizes (tens of learners, 225 basis functions, 6 neurons) the
-call overhead of those kernels dominates: for the paper's 27 learners, the NGnet basis alone
-took 110 us of a 140 us control period.  XLA's own generated code does the same work in a
-fraction of that, so on the CPU these fusions are turned off.
+call overhead of those kernels dominates the work (``docs/performance.md`` has the
+measurement); XLA's own generated code does the same work in a fraction of the time, so on
+the CPU these fusions are turned off.
 
 For the same reason the command line gives XLA:CPU one thread (``one_cpu_thread``).
 """

@@ -13,9 +13,10 @@ are discretised with the control period dt:
   the learning step itself leaks into dV/dt: on a stationary input
   delta_n = r - V_n / tau + g delta_{n-1} with g = alpha (e . b) ~ alpha kappa_c |b|^2,
   which diverges for g > 1.  At the paper's alpha = 78, kappa_c = 0.5 and |b|^2 ~ 0.16
-  (15 x 15 grid, width = spacing) g ~ 6; scaled by 0.1, g ~ 0.6.  This is our reading of
-  the DESIGN.md probe, where the printed rates diverged and rates x 0.1 learned; with the
-  current-weights form the printed rates are stable (tests/test_learning_math.py).
+  (15 x 15 grid, width = spacing) g ~ 6; scaled by 0.1, g ~ 0.6.  This explains why an
+  early prototype that cached V(t - dt) diverged at the printed rates and learned at 0.1 x
+  them; with the current-weights form the printed rates are stable
+  (tests/test_learning_math.py).
 * Eligibility traces, eqs (18) and (21): e <- (1 - dt / kappa) e + dt * grad, the explicit
   Euler step with Doya's (1 - dt / kappa) factor; a contraction for 0 < dt < kappa, with the
   steady state kappa * grad under a constant gradient.
@@ -46,9 +47,9 @@ from mjxcpg.learning.policy import log_policy_gradients, noise_decay
 class LearnerParams:
     """Learning constants; defaults are the paper's (Learning ... sections).
 
-    ``rate_scale`` multiplies alpha, beta_mu and beta_sigma.  DESIGN.md reports the printed
-    rates diverging on a probe (with a value cached from the previous step in the TD error,
-    see the module docstring) and learning with 0.1.  On our robot (k_s = 10, seeds 0-2,
+    ``rate_scale`` multiplies alpha, beta_mu and beta_sigma.  An early prototype (with a value
+    cached from the previous step in the TD error, see the module docstring) diverged at the
+    printed rates and learned with 0.1.  On our robot (k_s = 10, seeds 0-2,
     8 ms control period, ``docs/learning.md``) the printed rates drove |w^mu| to 1e4 and
     sigma to 1 within 300 trials (one seed of three succeeded, with a bang-bang policy);
     0.1 sent one seed to NaN through sigma -> 0; 0.03 with sigma kept in
@@ -126,7 +127,7 @@ def terminal_td_error(fall_reward: jax.Array, previous_value: jax.Array) -> jax.
 
     The trial ends at a fall and nothing follows it, so the value just before the fall
     should equal the fall's reward (the paper's r = -1, a one-off punishment, not a rate).
-    The DESIGN.md probe learned with this form; the alternative, td_error with V(t) = 0,
+    The early prototype learned with this form; the alternative, td_error with V(t) = 0,
     gives delta = r - V(t - dt) / dt, a kick 1/dt = 125 times larger at an 8 ms period.
     """
     return fall_reward - previous_value

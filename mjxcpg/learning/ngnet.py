@@ -7,7 +7,7 @@ The input x is the pelvis angular velocity (d theta_roll/dt, d theta_pitch/dt).
 Everything is pure JAX in float32 for one learner; ``vmap`` over learners with the basis
 unbatched (``in_axes=None``).
 
-Correction to the printed equations (see DESIGN.md): eq (24) prints
+Correction to the printed equations: eq (24) prints
 phi_k = exp(-||s_k^T (x - c_k)||); Doya's (2000) NGnet is a Gaussian, with the norm
 *squared*, which is what ``gaussian_activations`` implements.
 """
