@@ -18,10 +18,10 @@ import time
 import jax
 
 from mjxcpg import bench
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.jaxutil import xla
 from mjxcpg.physics import engines
 from mjxcpg.training import train
-from mjxcpg.jaxutil import xla
-from mjxcpg.control.sim import make_simulation
 
 
 class NoPhysics(engines.NativeEngine):

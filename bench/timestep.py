@@ -24,12 +24,12 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg.training import report, runs
 from mjxcpg.control import walk
-from mjxcpg.jaxutil import xla
 from mjxcpg.control.controller import ControllerParams, roll_rate_feedback
-from mjxcpg.learning.learner import TrialParams
 from mjxcpg.control.sim import make_simulation
+from mjxcpg.jaxutil import xla
+from mjxcpg.learning.learner import TrialParams
+from mjxcpg.training import report, runs
 from mjxcpg.training.train import RunSpec
 
 LADDER = ((0.002, 0.004), (0.004, 0.008), (0.008, 0.008), (0.008, 0.016), (0.016, 0.016))

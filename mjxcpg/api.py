@@ -8,8 +8,8 @@ from typing import Callable, Iterable
 
 from mjxcpg.evaluation import evaluate, report as evaluation_report, transfer
 from mjxcpg.evaluation.protocol import EvalParams
-from mjxcpg.training import runs, train
 from mjxcpg.training import report as run_report
+from mjxcpg.training import runs, train
 from mjxcpg.training.config import load_spec, validate
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec

@@ -45,10 +45,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mjxcpg.control.sim import Simulation, make_simulation
+from mjxcpg.jaxutil import xla
 from mjxcpg.physics import engines
 from mjxcpg.training import train
-from mjxcpg.jaxutil import xla
-from mjxcpg.control.sim import Simulation, make_simulation
 
 MODELS = ("qrio", "humanoid")
 WORKLOADS = ("physics", "full")

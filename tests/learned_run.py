@@ -11,8 +11,8 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from mjxcpg.training import config, runs, train
 from mjxcpg.control.sim import make_simulation
+from mjxcpg.training import config, runs, train
 
 STORED_POLICY = Path(__file__).resolve().parent / "data" / "learned_policy_ks10_seed1.json"
 

@@ -10,7 +10,6 @@ float32 rounding, amplified by the conditioning of the solve.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from typing import NamedTuple
 
@@ -20,17 +19,17 @@ import mujoco
 import numpy as np
 import orbax.checkpoint as ocp
 import pytest
-from conftest import HAND, LEARNED, load_learned_policy
+from conftest import HAND, LEARNED, load_learned_policy, model_fingerprint
 
-from mjxcpg.physics import engines
-from mjxcpg.training import runs
-from mjxcpg.control import walk
 from mjxcpg.cli import main
-from mjxcpg.training.config import load_spec
+from mjxcpg.control import walk
 from mjxcpg.control.controller import control_step, joint_targets, roll_rate_feedback
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.physics import engines
 from mjxcpg.physics.model import Layout, observe
 from mjxcpg.robots.qrio import QRIO
-from mjxcpg.control.sim import make_simulation
+from mjxcpg.training import runs
+from mjxcpg.training.config import load_spec
 
 SEED = 0
 ONE_STEP_STATES = 100
@@ -298,7 +297,7 @@ def test_stored_policy_was_learned_on_this_model():
     tests/data/make_learned_policy.py when the model changes)."""
     record = load_learned_policy()
     assert record["command"].startswith("mjxcpg learn --k-s 10 --seed 1 --engine native")
-    assert record["model_sha256"] == hashlib.sha256(QRIO.mjcf_resource().read_bytes()).hexdigest(), (
+    assert record["model_sha256"] == model_fingerprint(QRIO.mjcf_resource().read_text()), (
         f"tests/data policy was learned at {record['git_commit']} on another model")
     assert record["trials_to_success"] is not None and record["trials_to_success"] > 0
     assert len(record["policy_mean_weights"]) == record["basis_grid"] ** 2

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from learned_run import make_learned_run
 
+from mjxcpg.cli import main
+from mjxcpg.control.sim import make_simulation
 from mjxcpg.evaluation import evaluate
 from mjxcpg.evaluation import protocol as eval_protocol
 from mjxcpg.training import runs
-from mjxcpg.cli import main
-from mjxcpg.control.sim import make_simulation
 
 SMALL = ["--fixed-point-steps", "4", "--perturbations", "4", "--slope-seconds", "3",
          "--max-slope-deg", "1", "--push-rounds", "1"]

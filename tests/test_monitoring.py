@@ -10,8 +10,8 @@ import pytest
 from tensorboard.backend.event_processing.event_file_loader import RawEventFileLoader
 from tensorboard.compat.proto.event_pb2 import Event
 
-from mjxcpg.training.events import RunEvents, read_scalars
 from mjxcpg.learning.learner import TrialParams
+from mjxcpg.training.events import RunEvents, read_scalars
 from mjxcpg.training.progress import expected_total_trials, remaining_seconds_simulated
 
 

@@ -14,10 +14,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjxcpg.control.controller import ControllerParams
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning import ngnet
 from mjxcpg.learning.learner import Draws, TrialParams, Task, home_ctrl, init_learner, is_done, learner_step
-from mjxcpg.control.controller import ControllerParams
 from mjxcpg.physics.model import Layout, Sensors, load_model
 
 DT = 0.008

@@ -19,8 +19,8 @@ RENDER_SCRIPT = """
 import json, sys
 from pathlib import Path
 import numpy as np
-from mjxcpg.evaluation import render
 from mjxcpg.control.sim import standing_qpos
+from mjxcpg.evaluation import render
 from mjxcpg.physics.model import Layout, load_model
 
 model = load_model()

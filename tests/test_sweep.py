@@ -16,9 +16,9 @@ import pytest
 from conftest import HAND, STEPPING
 from test_monitoring import tensorboard_scalars
 
-from mjxcpg.training import config, train
 from mjxcpg.cli import main
 from mjxcpg.control.sim import make_simulation
+from mjxcpg.training import config, train
 
 
 @pytest.fixture(scope="module")

@@ -38,10 +38,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mjxcpg.control.walk import FALL_HEIGHT, FALL_UPRIGHTNESS
 from mjxcpg.physics.model import Observation, Sensors
 from mjxcpg.robots.description import LegNames, RobotDescription
 from mjxcpg.robots.qrio import QRIO
-from mjxcpg.control.walk import FALL_HEIGHT, FALL_UPRIGHTNESS
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import cpg
-from mjxcpg.jaxutil import xla
 from mjxcpg.control.controller import ControllerParams, control_step
+from mjxcpg.jaxutil import xla
 from mjxcpg.physics.engines import Engine
 from mjxcpg.physics.model import Layout, Observation, observe
 

@@ -73,9 +73,9 @@ def record_gait(run_dir: Path, learner: int, seconds: float, engine: str | None 
     """Walk learner ``learner``'s final policy of the run in ``run_dir`` for ``seconds``."""
     import jax
 
-    from mjxcpg.training import runs
     from mjxcpg.control import walk
     from mjxcpg.learning.learner import policy_mean_feedback
+    from mjxcpg.training import runs
 
     spec, sim, task, state = runs.load_run(run_dir, engine, robot=robot)
     runs.check_learners(spec, [learner])

@@ -18,11 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxcpg.control import walk
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.learning.learner import policy_mean_feedback
 from mjxcpg.physics import hardware
 from mjxcpg.training import report, runs
-from mjxcpg.control import walk
-from mjxcpg.learning.learner import policy_mean_feedback
-from mjxcpg.control.sim import make_simulation
 
 ENGINES = ("native", "mjx")
 

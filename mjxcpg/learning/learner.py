@@ -33,13 +33,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjxcpg.learning import actor_critic as ac
 from mjxcpg.control import cpg, estimator
-from mjxcpg.learning import ngnet, policy
-from mjxcpg.jaxutil.pytree import tree_where
 from mjxcpg.control.controller import ControllerParams, control_step, hand_feedback, joint_targets
-from mjxcpg.physics.model import Layout, Observation, Sensors, observe
 from mjxcpg.control.walk import has_fallen
+from mjxcpg.jaxutil.pytree import tree_where
+from mjxcpg.learning import actor_critic as ac
+from mjxcpg.learning import ngnet, policy
+from mjxcpg.physics.model import Layout, Observation, Sensors, observe
 from mjxcpg.robots.qrio import QRIO
 
 

@@ -26,10 +26,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from mjxcpg.training import config, plots, report, runs, train
 from mjxcpg.control.estimator import EstimatorParams
-from mjxcpg.learning.learner import init_learner
 from mjxcpg.control.sim import make_simulation
+from mjxcpg.learning.learner import init_learner
+from mjxcpg.training import config, plots, report, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 

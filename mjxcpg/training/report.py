@@ -10,9 +10,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxcpg.training import plots, stats, train
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
+from mjxcpg.training import plots, stats, train
 
 # Table 1, simulation column: k_s -> (experiments, successes, mean trials to success)
 PAPER_TABLE1 = {0.0: (4, 1, 2385), 1.0: (3, 3, 528), 2.0: (3, 3, 195), 3.0: (4, 4, 464),

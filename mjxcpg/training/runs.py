@@ -19,9 +19,9 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from mjxcpg.control.sim import Simulation, make_simulation
 from mjxcpg.training import config, events, train
 from mjxcpg.training.progress import RunProgress
-from mjxcpg.control.sim import Simulation, make_simulation
 
 
 _READ_ATTEMPTS = 4

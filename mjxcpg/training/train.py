@@ -13,10 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxcpg.control.controller import ControllerParams
+from mjxcpg.jaxutil import xla
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning import ngnet
-from mjxcpg.jaxutil import xla
-from mjxcpg.control.controller import ControllerParams
 from mjxcpg.learning.learner import (LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step,
                             period_draws)
 from mjxcpg.control.sim import Simulation
