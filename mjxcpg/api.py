@@ -3,14 +3,16 @@ notebooks (README, "Python API").  ``import mjxcpg`` then ``mjxcpg.sweep(...)``,
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Callable, Iterable
 
-from mjxcpg.evaluation import evaluate, report as evaluation_report, transfer
+from mjxcpg.evaluation import evaluate, transfer
+from mjxcpg.evaluation import report as evaluation_report
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.training import report as run_report
 from mjxcpg.training import runs, train
-from mjxcpg.training.config import load_spec, validate
+from mjxcpg.training.config import load_spec, spec_to_dict, validate
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec
 
@@ -20,20 +22,37 @@ EVALUATIONS = ("return_map", "slopes", "pushes", "transfer")  # transfer: on the
 
 
 def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = None, resume: bool = False,
-          force: bool = False, progress: bool = True, tensorboard: bool = True) -> dict:
+          force: bool = False, progress: bool = True, tensorboard: bool = True,
+          allow_other_code: bool = False) -> dict:
     """Run the learners of ``config`` (a config's name, a .toml/.json path or a ``RunSpec``)
     in lockstep until each has met the success criterion or used its budget, into the run
     directory ``out`` (checkpoints, TensorBoard events, reports: README, "Learning").
+
+    ``out`` is locked for the run (``runs.locked``); ``allow_other_code`` lets ``resume``
+    continue a run that other code made, and records that it did.
 
     Returns what ``out/summary.json`` holds (per learner: k_s, seed, succeeded,
     trials_to_success, mean_vx, ...), with ``wall_s``, the wall time of this session."""
     spec = validate(config) if isinstance(config, RunSpec) else load_spec(str(config))
     out = Path(out)
-    sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
-                                            tensorboard=tensorboard)
-    summary = run_report.write_report(out, spec, sim, task, state)
+    with runs.locked(out):
+        if resume and runs.is_finished(out):
+            return finished_summary(out, spec)
+        sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
+                                                tensorboard=tensorboard, allow_other_code=allow_other_code)
+        summary = run_report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary
+
+
+def finished_summary(out: Path, spec: RunSpec) -> dict:
+    """A resumed run that had already finished: its results as they are, ``wall_s`` 0
+    (``make run`` a second time reprints Table 1 and exits 0)."""
+    saved, _ = runs.read_config(out)
+    if spec_to_dict(saved) != spec_to_dict(spec):
+        raise runs.RunError(f"{out} holds a finished run of another config; use a new --out")
+    runs.notice(f"{out} holds a finished run; its results are kept as they are")
+    return json.loads((out / "summary.json").read_text()) | {"wall_s": 0.0}
 
 
 def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None, engine: str | None = None,

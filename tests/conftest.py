@@ -1,4 +1,4 @@
-"""Shared, session-scoped simulations: JAX compile time dominates small tests.
+"""Shared, session-scoped simulations and runs: JAX compile time dominates small tests.
 
 Each engine walks one batch of robots for 20 s, compiled once per session:
 
@@ -23,11 +23,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjxcpg.cli import main
 from mjxcpg.control import walk
 from mjxcpg.control.controller import roll_rate_feedback
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.training import config
 from mjxcpg.training.train import RunSpec, make_task
 
 WALK_SECONDS = 20.0
@@ -112,3 +114,18 @@ def walks_mujoco(session_walk_mujoco):
 def walks_mjx(session_walk_mjx):
     """The same robots on MJX."""
     return session_walk_mjx.gaits
+
+
+@pytest.fixture(scope="session")
+def quick_spec():
+    return config.load_spec("quick")
+
+
+@pytest.fixture(scope="session")
+def finished_quick(tmp_path_factory):
+    """The `quick` sweep, run once, uninterrupted: what every interrupted or damaged run of
+    it must end as."""
+    out = tmp_path_factory.mktemp("quick") / "run"
+    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native",
+                 "--no-tensorboard"]) == 0
+    return out

@@ -1,10 +1,11 @@
 """The command line: JSON output and one-line errors."""
 
+import argparse
 import json
 
 import pytest
 
-from mjxcpg.cli import main
+from mjxcpg.cli import build_parser, main
 
 
 @pytest.mark.parametrize("argv", [
@@ -18,6 +19,12 @@ from mjxcpg.cli import main
     ["bench", "--models", "ant"],
     ["bench", "--workloads", "render"],
     ["bench", "--budget-seconds", "-5"],
+    ["learn", "--k-s", "nan", "--seed", "0", "--trials", "5"],
+    ["learn", "--seed", "-1"],
+    ["learn", "--trials", "0"],
+    ["learn", "--trials", "1e3"],
+    ["learn", "--trials", "1" + "0" * 400],
+    ["eval", "--run", "x", "--max-slope-deg", "31"],
 ])
 def test_bad_input_is_one_line_and_nonzero(argv, capsys):
     with pytest.raises(SystemExit) as exit_info:
@@ -46,3 +53,40 @@ def test_the_program_gives_xla_one_cpu_thread_unless_nproc_is_set(monkeypatch):
     monkeypatch.setenv("NPROC", "8")
     xla.one_cpu_thread()
     assert os.environ["NPROC"] == "8"
+
+
+def _numeric_flags() -> list[tuple[str, str]]:
+    """(command, flag) of every option whose text the parser turns into something."""
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return [(name, action.option_strings[-1]) for name, sub in commands.choices.items()
+            for action in sub._actions if action.type is not None]
+
+
+@pytest.mark.parametrize("command, flag", _numeric_flags())
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+def test_every_numeric_flag_rejects_non_finite_values(command, flag, value, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--run", "x", flag, value] if command in ("eval", "render", "controls", "transfer")
+             else [command, flag, value])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"mjxcpg {command}: error: argument {flag}") and "\n" not in err
+
+
+@pytest.mark.parametrize("text, key", [
+    ("k_s = [nan]\nseeds = [0]\n", "k_s[0]"),
+    ("k_s = [1.0]\nseeds = [-3]\n", "seeds[0]"),
+    ("k_s = [1.0]\nseeds = [0]\n[learner]\na_max = inf\n", "learner.a_max"),
+    ("k_s = [1.0]\nseeds = [0]\n[learner]\nkappa_c = 0.0\n", "learner.kappa_c"),
+    ("k_s = [1.0]\nseeds = [0]\n[controller.cpg]\ntau = -0.1\n", "controller.cpg.tau"),
+    ("k_s = [1.0]\nseeds = [0]\n[trial]\nhand_seconds = [-1.0, 2.0]\n", "trial.hand_seconds[0]"),
+    ("k_s = [1.0]\nseeds = [0]\nchunk_seconds = nan\n", "chunk_seconds"),
+])
+def test_bad_config_value_is_one_line_and_exit_2(tmp_path, text, key, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    assert main(["sweep", "--config", str(path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"mjxcpg: error: {key}: must be") and "\n" not in err
+    assert not (tmp_path / "run").exists()
+

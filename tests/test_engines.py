@@ -309,10 +309,10 @@ def test_checkpoint_round_trip_keeps_empty_leaves(tmp_path):
     them, so a checkpoint leaves them out and a restore takes them from its template."""
     spec = load_spec("quick")
     state = {"empty": np.zeros((spec.batch, 0), np.float32), "qpos": np.arange(6.0).reshape(spec.batch, 2)}
-    manager = runs._manager(tmp_path)
+    manager = runs._manager(tmp_path, writer=True)
     manager.save(1, args=ocp.args.StandardSave(runs._leaves(state, spec)))
     manager.wait_until_finished()
-    restored = runs.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
+    restored, _, _ = runs.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
     assert restored["empty"].shape == (spec.batch, 0)
     np.testing.assert_array_equal(restored["qpos"], state["qpos"])
 

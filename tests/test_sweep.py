@@ -21,19 +21,6 @@ from mjxcpg.control.sim import make_simulation
 from mjxcpg.training import config, train
 
 
-@pytest.fixture(scope="module")
-def quick_spec():
-    return config.load_spec("quick")
-
-
-@pytest.fixture(scope="module")
-def finished_quick(tmp_path_factory, quick_spec):
-    out = tmp_path_factory.mktemp("quick") / "run"
-    assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native",
-                 "--no-tensorboard"]) == 0
-    return out
-
-
 def test_sweep_writes_the_report(finished_quick, quick_spec):
     summary = json.loads((finished_quick / "summary.json").read_text())
     assert len(summary["learners"]) == quick_spec.batch

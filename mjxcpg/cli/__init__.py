@@ -6,6 +6,7 @@ its headless OpenGL back end (``MUJOCO_GL``) before MuJoCo reads it, at import."
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sys
 
@@ -40,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     _choose_headless_gl(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Orbax logs what its writer threads meet with tracebacks; the errors reach the user as
+    # one line each, from the library.
+    logging.getLogger("absl").setLevel(logging.CRITICAL)
     try:
         result = args.handler(args)
     except (UserError, ValueError, FileNotFoundError) as error:

@@ -47,15 +47,17 @@ def cmd_walk(args: argparse.Namespace) -> dict:
 
 
 def _learn_or_sweep(spec, args, out: Path) -> dict:
+    """Run (or resume) ``spec`` in ``out`` and write its report, ``out`` locked meanwhile."""
     from mjxcpg import api
 
     return api.sweep(spec, out, args.engine, resume=args.resume, force=args.force, progress=not args.quiet,
-                     tensorboard=args.tensorboard)
+                     tensorboard=args.tensorboard, allow_other_code=args.allow_other_code)
 
 
 def cmd_learn(args: argparse.Namespace) -> dict:
     from mjxcpg.learning.learner import TrialParams
     from mjxcpg.training.config import validate
+    from mjxcpg.training.runs import locked
     from mjxcpg.training.train import RunSpec
 
     if args.from_run is not None:
@@ -68,17 +70,18 @@ def cmd_learn(args: argparse.Namespace) -> dict:
                             trial=TrialParams(max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
     summary = _learn_or_sweep(spec, args, out)
-    learner = summary["learners"][0]
-    returns = json.loads((out / "returns.json").read_text())[0]
-    result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
-              "trials": learner["trials"], "mean_vx": learner["mean_vx"],
-              "final_policy_fell": learner["final_policy_fell"],
-              "policy_input_gradient": learner["policy_input_gradient"],
-              "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
-              "returns": returns["returns"], "falls": returns["falls"]}
-    (out / "learn.json").write_text(json.dumps(result, indent=1))
-    (out / "learning_curve_ks{:g}.png".format(args.k_s)).rename(out / "learning_curve.png")
-    (out / "policy_map_00.png").rename(out / "policy_map.png")
+    with locked(out):  # the run's files, renamed and added to
+        learner = summary["learners"][0]
+        returns = json.loads((out / "returns.json").read_text())[0]
+        result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
+                  "trials": learner["trials"], "mean_vx": learner["mean_vx"],
+                  "final_policy_fell": learner["final_policy_fell"],
+                  "policy_input_gradient": learner["policy_input_gradient"],
+                  "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
+                  "returns": returns["returns"], "falls": returns["falls"]}
+        (out / "learn.json").write_text(json.dumps(result, indent=1))
+        (out / "learning_curve_ks{:g}.png".format(args.k_s)).rename(out / "learning_curve.png")
+        (out / "policy_map_00.png").rename(out / "policy_map.png")
     return {k: v for k, v in result.items() if k not in ("returns", "falls")}
 
 
@@ -88,8 +91,8 @@ def _learn_online(args: argparse.Namespace) -> dict:
 
     if args.k_s is not None or args.seed is not None:
         raise UserError("--k-s and --seed come from the checkpoint with --from")
-    if args.resume:
-        raise UserError("--resume does not apply to --from; rerun with --force")
+    if args.resume or args.allow_other_code:
+        raise UserError("--resume and --allow-other-code do not apply to --from; rerun with --force")
     source = Path(args.from_run)
     out = Path(args.out or f"runs/online_{source.name}_learner{args.learner}_{args.robot}")
     trials = 400 if args.trials is None else args.trials

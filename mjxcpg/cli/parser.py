@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import math
+import dataclasses
+from collections.abc import Callable
 
 import mjxcpg
 from mjxcpg.cli.commands import (cmd_bench, cmd_controls, cmd_eval, cmd_learn, cmd_render, cmd_sweep,
                                  cmd_transfer, cmd_walk)
+from mjxcpg.training import checks
 
 DESCRIPTION = "The mjxcpg command line: walk, learn, sweep, controls, transfer, eval, render, bench."
 
@@ -19,40 +21,28 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _positive_seconds(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
-    return value
+def _number(rule: checks.Range) -> Callable[[str], int | float]:
+    """An argparse type: the flag's text as a number that ``rule`` allows (``mjxcpg.training.checks``)."""
+    def parse(text: str) -> int | float:
+        try:
+            return checks.parse(text, rule)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
 
-
-def _slope(text: str) -> float:
-    from mjxcpg.physics.model import MAX_SLOPE_DEG
-
-    value = float(text)
-    if not -MAX_SLOPE_DEG <= value <= MAX_SLOPE_DEG:
-        raise argparse.ArgumentTypeError(f"must be within +/-{MAX_SLOPE_DEG:g} degrees, got {text}")
-    return value
-
-
-def _nonnegative_int(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.control.sim import ROBOTS
     from mjxcpg.physics.engines import ENGINES
-    from mjxcpg.training.config import config_names
+    from mjxcpg.physics.model import MAX_SLOPE_DEG
+    from mjxcpg.training.config import config_names, range_of
+
+    seconds = _number(checks.POSITIVE)
+    count = _number(checks.COUNT)
+    index = _number(checks.INDEX)
+    non_negative_count = _number(checks.NON_NEGATIVE_COUNT)
+    slope = _number(checks.Range(low=-MAX_SLOPE_DEG, high=MAX_SLOPE_DEG))
 
     parser = _Parser(prog="mjxcpg", description=DESCRIPTION)
     parser.add_argument("--version", action="version", version=f"%(prog)s {mjxcpg.__version__}")
@@ -62,10 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--controller", choices=("hand", "stepping", "in-place"), default="hand",
                       help="hand: hand-designed a_5; stepping: a_5 = 0; in-place: a_5 = 0 and A_x = 0")
     walk.add_argument("--checkpoint", help="walk with the learned policy saved in this run directory")
-    walk.add_argument("--learner", type=int, default=0, help="learner index within a sweep checkpoint")
+    walk.add_argument("--learner", type=index, default=0, help="learner index within a sweep checkpoint")
     walk.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
-    walk.add_argument("--seconds", type=_positive_seconds, default=20.0)
-    walk.add_argument("--slope", type=_slope, default=0.0, help="floor slope in degrees (uphill > 0)")
+    walk.add_argument("--seconds", type=seconds, default=20.0)
+    walk.add_argument("--slope", type=slope, default=0.0, help="floor slope in degrees (uphill > 0)")
     walk.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     walk.set_defaults(handler=cmd_walk)
 
@@ -74,19 +64,21 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="run directory (default: runs/...)")
         p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
         p.add_argument("--force", action="store_true", help="replace an existing --out")
+        p.add_argument("--allow-other-code", action="store_true",
+                       help="with --resume: continue a run made by other code (recorded in its config.json)")
         p.add_argument("--quiet", action="store_true", help="no progress line")
         p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                        help="write no TensorBoard event files (OUT/tensorboard)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
     learn = sub.add_parser("learn", help="one learner learns the propulsive feedback a_5")
-    learn.add_argument("--k-s", type=float, default=None, help="velocity reward gain k_S of eq 27 (default 10)")
-    learn.add_argument("--seed", type=int, default=None, help="default 0")
-    learn.add_argument("--trials", type=int, default=None,
+    learn.add_argument("--k-s", type=_number(range_of("k_s")), default=None, help="velocity reward gain k_S of eq 27 (default 10)")
+    learn.add_argument("--seed", type=_number(range_of("seeds")), default=None, help="default 0")
+    learn.add_argument("--trials", type=_number(range_of("trial.max_trials")), default=None,
                        help="trial budget (default 1000; 400 with --from)")
     learn.add_argument("--from", dest="from_run", metavar="DIR",
                        help="continue learner --learner of this run (online additional learning)")
-    learn.add_argument("--learner", type=int, default=0, help="learner index within --from's run")
+    learn.add_argument("--learner", type=index, default=0, help="learner index within --from's run")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
                        help="robot to continue on with --from (hardware: docs/hardware.md)")
     learn.add_argument("--reward", choices=("estimate", "truth"), default=None,
@@ -104,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     ctl = sub.add_parser("controls", help="the run's protocol without learning, without a_5, and with "
                          "the hand-designed feedback, beside its Table 1")
     ctl.add_argument("--run", required=True, help="a finished sweep's run directory")
-    ctl.add_argument("--trials", type=_positive_int, default=None,
+    ctl.add_argument("--trials", type=count, default=None,
                      help="trial budget of each control learner (default 400, at most the run's)")
     ctl.add_argument("--only", nargs="+", choices=("learning_off", "learning_off_min_sigma", "zero_feedback",
                                                    "hand_feedback"), help="run only these controls")
@@ -119,14 +111,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = sub.add_parser("transfer", help="walk a run's final policies on MuJoCo C and on MJX")
     tr.add_argument("--run", required=True, help="a finished run directory")
-    tr.add_argument("--seconds", type=_positive_seconds, default=20.0)
+    tr.add_argument("--seconds", type=seconds, default=20.0)
     tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     tr.set_defaults(handler=cmd_transfer)
 
     rend = sub.add_parser("render", help="filmstrip PNG and MP4 video of a learned gait (headless OpenGL)")
     rend.add_argument("--run", required=True, help="run directory")
-    rend.add_argument("--learner", type=int, default=0, help="learner index within the run")
-    rend.add_argument("--seconds", type=_positive_seconds, default=10.0, help="length of the walk")
+    rend.add_argument("--learner", type=index, default=0, help="learner index within the run")
+    rend.add_argument("--seconds", type=seconds, default=10.0, help="length of the walk")
     rend.add_argument("--robot", choices=ROBOTS, default="nominal")
     rend.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     rend.add_argument("--out", help="output directory (default: RUN/render)")
@@ -137,23 +129,23 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation = sub.add_parser("eval", help="evaluate a run's learned policies as the paper did "
                                 "(velocity, return map, slopes, pushes)")
     evaluation.add_argument("--run", required=True, help="run directory (learn or sweep)")
-    evaluation.add_argument("--learner", type=int, nargs="+", help="learner indices (default: all)")
+    evaluation.add_argument("--learner", type=index, nargs="+", help="learner indices (default: all)")
     evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
-    evaluation.add_argument("--seed", type=_nonnegative_int, default=None, help="evaluation seed (default 0)")
-    evaluation.add_argument("--fixed-point-steps", type=_nonnegative_int, default=None,
+    evaluation.add_argument("--seed", type=_number(checks.SEED), default=None, help="evaluation seed (default 0)")
+    evaluation.add_argument("--fixed-point-steps", type=non_negative_count, default=None,
                             help="unperturbed gait cycles for velocity and fixed point (default 100)")
-    evaluation.add_argument("--perturbations", type=_nonnegative_int, default=None,
+    evaluation.add_argument("--perturbations", type=non_negative_count, default=None,
                             help="return-map perturbations (default 50)")
-    evaluation.add_argument("--slope-seconds", type=_positive_seconds, default=None,
+    evaluation.add_argument("--slope-seconds", type=seconds, default=None,
                             help="walk on each slope this long (default 20)")
-    evaluation.add_argument("--max-slope-deg", type=_nonnegative_int, default=None,
+    evaluation.add_argument("--max-slope-deg", type=_number(dataclasses.replace(checks.NON_NEGATIVE_COUNT, high=MAX_SLOPE_DEG)), default=None,
                             help="steepest inclination tried each way (default 15)")
-    evaluation.add_argument("--push-rounds", type=_nonnegative_int, default=None,
+    evaluation.add_argument("--push-rounds", type=non_negative_count, default=None,
                             help="bisection rounds per push direction (default 7)")
     evaluation.add_argument("--skip", nargs="+", choices=("return_map", "slopes", "pushes", "transfer"),
                             help="evaluations to leave out (transfer: --robot hardware only)")
-    evaluation.add_argument("--transfer-repeats", type=_positive_int, default=20,
+    evaluation.add_argument("--transfer-repeats", type=count, default=20,
                             help="with --robot hardware: walks per policy, each with other sensor noise")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
                                            "with --robot hardware, its hardware/ subdirectory)")
@@ -168,16 +160,16 @@ def build_parser() -> argparse.ArgumentParser:
     bench_parser.add_argument("--engines", nargs="+", choices=ENGINES, default=list(ENGINES))
     bench_parser.add_argument("--models", nargs="+", choices=bench.MODELS, default=list(bench.MODELS),
                               help="qrio: our robot; humanoid: MJX's benchmark model (physics only)")
-    bench_parser.add_argument("--batches", nargs="+", type=_positive_int, default=list(bench.BATCHES),
+    bench_parser.add_argument("--batches", nargs="+", type=count, default=list(bench.BATCHES),
                               help="robots stepped together")
     bench_parser.add_argument("--workloads", nargs="+", choices=bench.WORKLOADS, default=list(bench.WORKLOADS),
                               help="physics: physics alone; full: physics + controller + learner")
-    bench_parser.add_argument("--seconds", type=_positive_seconds, default=bench.Options.seconds,
+    bench_parser.add_argument("--seconds", type=seconds, default=bench.Options.seconds,
                               help="timed seconds per measurement, after a warm-up call")
-    bench_parser.add_argument("--budget-seconds", type=_positive_seconds, default=bench.Options.budget_seconds,
+    bench_parser.add_argument("--budget-seconds", type=seconds, default=bench.Options.budget_seconds,
                               help="stepping time a measurement may take (compilation apart); "
                                    "cases projected past it are skipped")
-    bench_parser.add_argument("--control-steps", type=_positive_int, default=bench.Options.control_steps,
+    bench_parser.add_argument("--control-steps", type=count, default=bench.Options.control_steps,
                               help="control periods per timed call")
     bench_parser.add_argument("--quiet", action="store_true", help="no progress lines")
     bench_parser.add_argument("--json", action="store_true",

@@ -2,7 +2,9 @@
 of the user's) or JSON, validated.
 
 An unknown key, a value of the wrong type or an impossible value is a ``ValueError`` whose
-one-line message names the key.
+one-line message names the key.  Every number of a spec, whether a config file or a
+command-line flag gave it, passes ``validate``: finite, and in its range of ``RANGES``
+(``mjxcpg.training.checks``).
 
 The learners are either spelled out, ``k_s`` and ``seeds`` (one pair per learner), or
 generated (``expand_learners``): ``k_s_values`` with ``seeds_per_k_s`` learners per value
@@ -19,14 +21,17 @@ from __future__ import annotations
 import dataclasses
 import importlib.resources
 import json
-import math
+import re
 import tomllib
 import types
 import typing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from mjxcpg.learning.learner import ACTORS
+from mjxcpg.training import checks
+from mjxcpg.training.checks import COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, SEED, Range
 from mjxcpg.training.train import RunSpec
 
 # Package data, so that an installed (non-editable) mjxcpg finds its configs too.
@@ -54,8 +59,8 @@ def _check(value: Any, annotation: Any, key: str) -> Any:
             raise ValueError(f"{key}: expected {len(args)} values, got {len(value)}")
         return tuple(_check(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
     if annotation is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(f"{key}: expected a finite number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{key}: expected a number, got {value!r}")
         return float(value)
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -77,31 +82,77 @@ def from_dict(cls: type, data: dict, prefix: str = "") -> Any:
     return cls(**kwargs)
 
 
+# The range of each number of a spec by its key (list entries share their list's key); a
+# number not listed need only be finite.
+RANGES: dict[str, Range] = {
+    "k_s": FINITE,
+    "seeds": SEED,
+    "learner.tau": POSITIVE,
+    "learner.alpha": NON_NEGATIVE,
+    "learner.kappa_c": POSITIVE,
+    "learner.beta_mu": NON_NEGATIVE,
+    "learner.beta_sigma": NON_NEGATIVE,
+    "learner.kappa_mu": POSITIVE,
+    "learner.kappa_sigma": POSITIVE,
+    "learner.a_max": POSITIVE,
+    "learner.noise_correlation_s": NON_NEGATIVE,
+    "learner.rate_scale": NON_NEGATIVE,
+    "learner.max_abs_td_error": POSITIVE,
+    "trial.trial_seconds": POSITIVE,
+    "trial.hand_seconds": NON_NEGATIVE,
+    "trial.velocity_filter_s": POSITIVE,
+    "trial.success_streak": COUNT,
+    "trial.max_trials": COUNT,
+    "trial.trials_after_success": NON_NEGATIVE_COUNT,
+    "controller.cpg.tau": POSITIVE,
+    "controller.cpg.tau_adapt": POSITIVE,
+    "controller.amp_x": NON_NEGATIVE,
+    "controller.amp_z": NON_NEGATIVE,
+    "controller.z0": POSITIVE,
+    "controller.control_dt": POSITIVE,
+    "controller.cpg_substeps": COUNT,
+    "physics_dt": POSITIVE,
+    "basis_grid": dataclasses.replace(COUNT, low=2),
+    "basis_width": POSITIVE,
+    "chunk_seconds": POSITIVE,
+}
+
+
+def _numbers(value: Any, name: str = "") -> Iterator[tuple[str, Any]]:
+    """(name, number) of every number in ``value``, a spec or a part of one."""
+    if dataclasses.is_dataclass(value):
+        for field in dataclasses.fields(value):
+            yield from _numbers(getattr(value, field.name), f"{name}.{field.name}" if name else field.name)
+    elif isinstance(value, (tuple, list)):
+        for i, item in enumerate(value):
+            yield from _numbers(item, f"{name}[{i}]")
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield name, value
+
+
+def range_of(name: str) -> Range:
+    """The range of the spec's number ``name`` (``RANGES``, list indices left out)."""
+    return RANGES.get(re.sub(r"\[\d+\]", "", name), FINITE)
+
+
 def validate(spec: RunSpec) -> RunSpec:
-    """Reject impossible values, naming the key."""
+    """Reject impossible values, naming the key: every number against its range, then the
+    rules that relate several values."""
+    for name, value in _numbers(spec):
+        checks.check(name, value, range_of(name))
     rules = [
         ("k_s", len(spec.k_s) > 0, "needs at least one learner"),
         ("seeds", len(spec.seeds) == len(spec.k_s), "needs one seed per k_s entry"),
-        ("trial.max_trials", spec.trial.max_trials >= 1, "must be at least 1"),
-        ("trial.trial_seconds", spec.trial.trial_seconds > 0, "must be positive"),
-        ("trial.success_streak", spec.trial.success_streak >= 1, "must be at least 1"),
-        ("trial.hand_seconds", 0 <= spec.trial.hand_seconds[0] <= spec.trial.hand_seconds[1]
-         < spec.trial.trial_seconds, "must be 0 <= low <= high < trial_seconds"),
-        ("trial.velocity_filter_s", spec.trial.velocity_filter_s > 0, "must be positive"),
-        ("trial.trials_after_success", spec.trial.trials_after_success >= 0, "must be non-negative"),
+        ("trial.hand_seconds", spec.trial.hand_seconds[0] <= spec.trial.hand_seconds[1]
+         < spec.trial.trial_seconds, "must be low <= high < trial_seconds"),
         ("trial.actor", spec.trial.actor in ACTORS, f"must be one of {', '.join(ACTORS)}"),
-        ("learner.noise_correlation_s", spec.learner.noise_correlation_s >= 0, "must be non-negative"),
-        ("learner.tau", spec.learner.tau > 0, "must be positive"),
-        ("learner.rate_scale", spec.learner.rate_scale >= 0, "must be non-negative"),
-        ("learner.a_max", spec.learner.a_max > 0, "must be positive"),
-        ("controller.control_dt", spec.controller.control_dt > 0, "must be positive"),
+        ("learner.w_sigma_bounds", spec.learner.w_sigma_bounds is None
+         or spec.learner.w_sigma_bounds[0] <= spec.learner.w_sigma_bounds[1], "must be low <= high"),
+        ("controller.vsr_sign", spec.controller.vsr_sign in (-1.0, 1.0), "must be -1 or 1"),
         ("controller.control_dt", spec.controller.control_dt < min(
             spec.learner.kappa_c, spec.learner.kappa_mu, spec.learner.kappa_sigma),
          "must be shorter than every trace time constant"),
-        ("controller.cpg_substeps", spec.controller.cpg_substeps >= 1, "must be at least 1"),
-        ("physics_dt", spec.physics_dt is None or spec.physics_dt > 0, "must be positive"),
         ("chunk_seconds", spec.chunk_seconds >= spec.controller.control_dt, "must cover a control period"),
-        ("basis_grid", spec.basis_grid >= 2, "must be at least 2"),
     ]
     for key, ok, message in rules:
         if not ok:
@@ -110,15 +161,6 @@ def validate(spec: RunSpec) -> RunSpec:
 
 
 GENERATOR_KEYS = ("k_s_values", "seeds_per_k_s", "first_seed", "learners")
-
-
-def _whole(data: dict, key: str, default: int, minimum: int) -> int:
-    value = data.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{key}: expected an integer, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{key}: must be at least {minimum}")
-    return value
 
 
 def expand_learners(data: dict) -> dict:
@@ -140,10 +182,12 @@ def expand_learners(data: dict) -> dict:
     values = _check(data["k_s_values"], tuple[float, ...], "k_s_values")
     if not values:
         raise ValueError("k_s_values: needs at least one value")
-    per_value = _whole(data, "seeds_per_k_s", 1, 1)
-    first_seed = _whole(data, "first_seed", 0, 0)
+    for i, value in enumerate(values):
+        checks.check(f"k_s_values[{i}]", value, RANGES["k_s"])
+    per_value = checks.check("seeds_per_k_s", data.get("seeds_per_k_s", 1), COUNT)
+    first_seed = checks.check("first_seed", data.get("first_seed", 0), SEED)
     one_pass = [k for k in values for _ in range(per_value)]
-    count = _whole(data, "learners", len(one_pass), 1)
+    count = checks.check("learners", data.get("learners", len(one_pass)), COUNT)
     k_s = [one_pass[i % len(one_pass)] for i in range(count)]
     rest = {key: value for key, value in data.items() if key not in GENERATOR_KEYS}
     return {"k_s": k_s, "seeds": list(range(first_seed, first_seed + count)), **rest}

@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 
 from mjxcpg.training import report, runs
+from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.train import RunSpec
 
 CONTROLS = {
@@ -57,13 +58,17 @@ def run_controls(run_dir: Path, names=tuple(CONTROLS), trials: int = DEFAULT_TRI
     spec, _ = runs.read_config(run_dir)
     specs = {name: control_spec(spec, name, trials) for name in names}  # every refusal before any run
     walls_path = run_dir / "controls" / "wall_s.json"
-    walls = json.loads(walls_path.read_text()) if walls_path.is_file() else {}
-    for name, cspec in specs.items():
-        out = run_dir / "controls" / name
-        sim, task, state, wall_s = runs.execute(out, cspec, engine, resume=resume, force=force,
-                                                progress=progress, tensorboard=tensorboard)
-        report.write_report(out, cspec, sim, task, state, plots_too=False)
-        walls[name] = wall_s
-        walls_path.write_text(json.dumps(walls, indent=1))
-    report.write_table1(run_dir)
+    # The run's lock covers its controls, which write into its table1.md.
+    with runs.locked(run_dir):
+        walls = json.loads(walls_path.read_text()) if walls_path.is_file() else {}
+        for name, cspec in specs.items():
+            out = run_dir / "controls" / name
+            if resume and runs.is_finished(out):
+                continue  # its results stay as they are
+            sim, task, state, wall_s = runs.execute(out, cspec, engine, resume=resume, force=force,
+                                                    progress=progress, tensorboard=tensorboard)
+            report.write_report(out, cspec, sim, task, state, plots_too=False)
+            walls[name] = wall_s
+            write_text_atomic(walls_path, json.dumps(walls, indent=1))
+        report.write_table1(run_dir)
     return walls

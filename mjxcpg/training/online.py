@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import time
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import jax.numpy as jnp
 from mjxcpg.control.estimator import EstimatorParams
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.learning.learner import init_learner
-from mjxcpg.training import config, plots, report, runs, train
+from mjxcpg.training import config, plots, provenance, report, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 
@@ -53,12 +52,21 @@ def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot
     reward = reward or ("estimate" if robot == "hardware" else "truth")
     if reward not in REWARD_SOURCES:
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
-    if out.exists() and any(out.iterdir()):
-        if not force:
-            raise runs.RunError(f"{out} exists; pass --force to replace it")
-        shutil.rmtree(out)
-    source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
+    source_spec, _ = runs.read_config(source)  # a bad source is refused before ``out`` is made
     runs.check_learners(source_spec, [learner])
+    with runs.locked(out):
+        if runs.run_files(out):
+            if not force:
+                raise runs.RunError(f"{out} exists; pass --force to replace it")
+            runs.remove_run_files(out)
+        return _learn_online_locked(source, learner, out, trials, robot, reward, engine, trial_seconds, progress,
+                                    tensorboard)
+
+
+def _learn_online_locked(source: Path, learner: int, out: Path, trials: int, robot: str, reward: str,
+                         engine: str | None, trial_seconds: float, progress: bool, tensorboard: bool) -> dict:
+    """``learn_online`` once ``out`` is locked and empty."""
+    source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
     spec = continued_spec(source_spec, learner, trials, trial_seconds)
     task = train.make_task(sim, spec)
     if reward == "estimate":
@@ -100,7 +108,7 @@ def _write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunStat
     nominal = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
     saved = train.RunState(physics=nominal.engine.init(nominal.qpos0, spec.batch),
                            learners=jax.tree.map(jnp.asarray, state.learners._replace(estimate=None)))
-    record = {"spec": config.spec_to_dict(spec), "engine": engine,
+    record = {"spec": config.spec_to_dict(spec), "engine": engine, "code": provenance.code_identity(),
               "online": {k: summary[k] for k in ("from", "learner", "robot", "reward")}}
     (out / "config.json").write_text(json.dumps(record, indent=1))
     runs.write_checkpoint(out, saved, spec)

@@ -13,6 +13,7 @@ import numpy as np
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.training import plots, stats, train
+from mjxcpg.training.files import write_text_atomic
 
 # Table 1, simulation column: k_s -> (experiments, successes, mean trials to success)
 PAPER_TABLE1 = {0.0: (4, 1, 2385), 1.0: (3, 3, 528), 2.0: (3, 3, 195), 3.0: (4, 4, 464),
@@ -73,9 +74,10 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
                                   out / f"learning_curve_ks{k_s:g}.png", title=f"k_s = {k_s:g} (cf. Fig 4)")
         plots.diagnostics(results, out / "diagnostics.png")
     summary = {"engine": sim.engine.name, "success_streak": spec.trial.success_streak, "learners": learners}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    (out / "returns.json").write_text(json.dumps(results))
-    write_table1(out)
+    write_text_atomic(out / "returns.json", json.dumps(results))
+    write_table1(out, summary)
+    # Last: a run directory with summary.json is finished, and holds all of its results.
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
     return summary
 
 
@@ -144,12 +146,13 @@ def velocity_trend(rows: list[dict]) -> dict:
     }
 
 
-def write_table1(run_dir: Path) -> str:
+def write_table1(run_dir: Path, summary: dict | None = None) -> str:
     """table1.md of a finished run: Table 1 beside the paper's, the learners and whatever
     controls ``run_dir/controls/`` holds in one table, and velocity against k_s (Fig 7);
-    the numbers also go to stats.json."""
+    the numbers also go to stats.json.  ``summary``: the run's summary.json, when it is
+    not yet written."""
     results = json.loads((run_dir / "returns.json").read_text())
-    learners = read_metrics(run_dir)
+    learners = read_metrics(run_dir) if summary is None else learner_metrics(summary, results)
     arms = {"learners": learners}
     for name in CONTROL_LABELS:
         if (run_dir / "controls" / name / "summary.json").is_file():
@@ -169,9 +172,8 @@ def write_table1(run_dir: Path) -> str:
                       f"velocity {trend['spearman_rho']:.2f}; least-squares slope "
                       f"{slope.format('.4f')} m/s per unit k_s over {slope.n} learners."]
     text = "\n".join(lines) + "\n"
-    (run_dir / "table1.md").write_text(text)
-    (run_dir / "stats.json").write_text(json.dumps(
-        json_safe({"arms": arms, "velocity_trend": trend}), indent=1))
+    write_text_atomic(run_dir / "table1.md", text)
+    write_text_atomic(run_dir / "stats.json", json.dumps(json_safe({"arms": arms, "velocity_trend": trend}), indent=1))
     return text
 
 
