@@ -28,7 +28,7 @@ from mjxcpg.control.sim import make_simulation
 from mjxcpg.physics import engines
 from mjxcpg.physics.model import Layout, observe
 from mjxcpg.robots.qrio import QRIO
-from mjxcpg.training import runs
+from mjxcpg.training import checkpoints
 from mjxcpg.training.config import load_spec
 
 SEED = 0
@@ -309,10 +309,10 @@ def test_checkpoint_round_trip_keeps_empty_leaves(tmp_path):
     them, so a checkpoint leaves them out and a restore takes them from its template."""
     spec = load_spec("quick")
     state = {"empty": np.zeros((spec.batch, 0), np.float32), "qpos": np.arange(6.0).reshape(spec.batch, 2)}
-    manager = runs._manager(tmp_path, writer=True)
-    manager.save(1, args=ocp.args.StandardSave(runs._leaves(state, spec)))
+    manager = checkpoints.manager_of(tmp_path, writer=True)
+    manager.save(1, args=ocp.args.StandardSave(checkpoints.checkpoint_leaves(state, spec)))
     manager.wait_until_finished()
-    restored, _, _ = runs.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
+    restored, _, _ = checkpoints.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
     assert restored["empty"].shape == (spec.batch, 0)
     np.testing.assert_array_equal(restored["qpos"], state["qpos"])
 

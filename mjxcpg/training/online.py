@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from mjxcpg.control.estimator import EstimatorParams
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.learning.learner import init_learner
-from mjxcpg.training import config, plots, provenance, report, runs, train
+from mjxcpg.training import checkpoints, config, plots, provenance, report, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 
@@ -111,4 +111,4 @@ def _write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunStat
     record = {"spec": config.spec_to_dict(spec), "engine": engine, "code": provenance.code_identity(),
               "online": {k: summary[k] for k in ("from", "learner", "robot", "reward")}}
     (out / "config.json").write_text(json.dumps(record, indent=1))
-    runs.write_checkpoint(out, saved, spec)
+    checkpoints.write_checkpoint(out, saved, spec)

@@ -1,8 +1,9 @@
 """Run directories: config, orbax checkpoints every chunk, resume, results, a lock.
 
 ``DIR/config.json`` (the run spec, the engine, and the code that made the run: see
-``mjxcpg.training.provenance``), ``DIR/checkpoints/`` (orbax, the full state: physics, CPG, learner
-weights, traces, RNG keys, bookkeeping, with the config's sha256 and a sha256 of it all),
+``mjxcpg.training.provenance``), ``DIR/checkpoints/`` (``mjxcpg.training.checkpoints``: orbax, the
+full state: physics, CPG, learner weights, traces, RNG keys, bookkeeping, with the config's
+sha256 and a sha256 of it all),
 ``DIR/summary.json`` (written last: a run directory that holds it is finished), ``DIR/.lock``.
 A run resumed from a checkpoint ends exactly as an uninterrupted one: chunk boundaries and
 every random draw are functions of the config and seeds alone.
@@ -24,16 +25,15 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import hashlib
 import json
 import os
 import shutil
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -41,28 +41,17 @@ import orbax.checkpoint as ocp
 
 from mjxcpg.control.sim import Simulation, make_simulation
 from mjxcpg.training import config, events, provenance, train
+from mjxcpg.training.checkpoints import (RunError, damage_text, manager_of, restore_state, save_next, set_aside,
+                                         written)
 from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.progress import RunProgress
 
 LOCK_NAME = ".lock"
-CHECKPOINTS = "checkpoints"
-DAMAGED_CHECKPOINTS = "damaged_checkpoints"
-# Checkpoints kept: the newest, and older ones to fall back on should it be damaged.
-KEPT_CHECKPOINTS = 3
-_READ_ATTEMPTS = 4
-
-
-class RunError(ValueError):
-    """A run directory that cannot be used as asked."""
 
 
 def notice(text: str) -> None:
     """One line to the user, beside the progress bar."""
     print(f"mjxcpg: {text}", file=sys.stderr, flush=True)
-
-
-def _first_line(error: BaseException) -> str:
-    return (str(error).splitlines() or [type(error).__name__])[0][:200]
 
 
 # ---------------------------------------------------------------- the lock
@@ -127,140 +116,6 @@ def is_finished(out: Path) -> bool:
     return (out / "summary.json").is_file()
 
 
-# ---------------------------------------------------------------- checkpoints
-
-def _fingerprint(spec: train.RunSpec) -> np.ndarray:
-    """The config's identity, stored in every checkpoint beside the state."""
-    text = json.dumps(config.spec_to_dict(spec), sort_keys=True).encode()
-    return np.frombuffer(hashlib.sha256(text).digest(), np.uint8)
-
-
-def _leaves_sha256(leaves: dict) -> np.ndarray:
-    """One sha256 over the leaves' names, dtypes, shapes and bytes."""
-    digest = hashlib.sha256()
-    for key in sorted(leaves):
-        x = np.ascontiguousarray(leaves[key])
-        digest.update(f"{key}:{x.dtype.str}:{x.shape}".encode())
-        digest.update(x.tobytes())
-    return np.frombuffer(digest.digest(), np.uint8)
-
-
-def _leaves(state: Any, spec: train.RunSpec) -> dict:
-    """The state's leaves by index, the config's fingerprint, and a sha256 of both.  Empty
-    leaves (MJX's data holds some, e.g. ``act`` of a model without actuator dynamics) are
-    left out: orbax cannot save them, and ``restore_state`` takes them from its template."""
-    leaves = {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state)) if np.size(x) > 0}
-    leaves["config_sha256"] = _fingerprint(spec)
-    return leaves | {"leaves_sha256": _leaves_sha256(leaves)}
-
-
-def _manager(out: Path, writer: bool = False) -> ocp.CheckpointManager:
-    """Orbax's view of ``out``'s checkpoints; a ``writer`` (holding the lock) also clears the
-    temporary directories of writes that a kill or a failure left unfinished."""
-    return ocp.CheckpointManager(
-        out.resolve() / CHECKPOINTS,
-        options=ocp.CheckpointManagerOptions(max_to_keep=KEPT_CHECKPOINTS, create=writer,
-                                             cleanup_tmp_directories=writer, read_only=not writer))
-
-
-def _written(out: Path, action: Callable[[], Any]) -> Any:
-    """``action``, a checkpoint write (or the wait for one), its failure a one-line error."""
-    try:
-        return action()
-    except Exception as error:  # orbax re-raises what its writer threads met, of many types
-        raise RunError(f"cannot write a checkpoint in {out / CHECKPOINTS}: {_first_line(error)}; "
-                       "the checkpoints written before it are kept") from None
-
-
-def _save_next(manager: ocp.CheckpointManager, state: Any, spec: train.RunSpec) -> None:
-    """Start saving ``state`` as the step after the latest (orbax writes in the background)."""
-    manager.save((manager.latest_step() or 0) + 1, args=ocp.args.StandardSave(_leaves(state, spec)))
-
-
-def write_checkpoint(out: Path, state: Any, spec: train.RunSpec) -> None:
-    """Save ``state`` as the next checkpoint of the run directory ``out`` and wait for it."""
-    manager = _manager(out, writer=True)
-    _written(out, lambda: _save_next(manager, state, spec))
-    _written(out, manager.wait_until_finished)
-
-
-class DamagedCheckpoint(Exception):
-    """A checkpoint that does not read back as it was written."""
-
-
-def _read_checkpoint(manager: ocp.CheckpointManager, step: int) -> dict:
-    """The leaves of checkpoint ``step``, checked against the sha256 saved with them
-    (checkpoints written before there was one are taken as they read)."""
-    try:
-        # Restored as saved, not onto a template: a foreign tree is then ours to report.
-        leaves = dict(manager.restore(step, args=ocp.args.StandardRestore()))
-    except Exception as error:  # orbax raises many types for a damaged checkpoint
-        raise DamagedCheckpoint(_first_line(error)) from None
-    saved = leaves.pop("leaves_sha256", None)
-    if saved is not None and not np.array_equal(saved, _leaves_sha256(leaves)):
-        raise DamagedCheckpoint("its contents do not match their sha256")
-    return leaves
-
-
-def newest_intact(manager: ocp.CheckpointManager) -> tuple[int, dict, list[tuple[int, str]]]:
-    """The newest checkpoint that reads back whole: its step, its leaves, and the newer,
-    damaged ones as (step, why)."""
-    for attempt in range(_READ_ATTEMPTS):
-        damaged = []
-        for step in sorted(manager.all_steps(), reverse=True):
-            try:
-                return step, _read_checkpoint(manager, step), damaged
-            except DamagedCheckpoint as error:
-                # A step that vanished while read was deleted by a run that is writing newer ones.
-                if (manager.directory / str(step)).exists():
-                    damaged.append((step, str(error)))
-        if len(damaged) == len(manager.all_steps()) or attempt == _READ_ATTEMPTS - 1:
-            break
-        time.sleep(0.5)
-        manager.reload()
-    if not damaged:
-        raise RunError(f"{manager.directory} holds no checkpoint")
-    raise RunError(f"no intact checkpoint in {manager.directory}: "
-                   + "; ".join(f"{step}: {why}" for step, why in damaged) + " (nothing was moved or deleted)")
-
-
-def restore_state(manager: ocp.CheckpointManager, template: Any,
-                  spec: train.RunSpec) -> tuple[Any, int, list[tuple[int, str]]]:
-    """The newest intact checkpoint, checked against the config that asks for it: the state,
-    its step, and the newer, damaged steps as (step, why)."""
-    step, leaves, damaged = newest_intact(manager)
-    expected = _leaves(template, spec)
-    expected.pop("leaves_sha256")
-    leaves.pop("leaves_sha256", None)
-    if not np.array_equal(leaves.pop("config_sha256", None), expected.pop("config_sha256")):
-        raise RunError("the checkpoint was written by another config")
-    if leaves.keys() != expected.keys() or any(
-            leaves[k].shape != v.shape or leaves[k].dtype != v.dtype for k, v in expected.items()):
-        raise RunError("the checkpoint does not match this version's state; rerun without --resume")
-    template_leaves, treedef = jax.tree.flatten(template)
-    state = jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves.get(f"{i:04d}", x))
-                                         for i, x in enumerate(template_leaves)])
-    return state, step, damaged
-
-
-def _damage_text(step: int, damaged: list[tuple[int, str]]) -> str:
-    return "; ".join(f"checkpoint {d} is damaged ({why})" for d, why in damaged) + f"; using checkpoint {step}"
-
-
-def _set_aside(out: Path, steps: list[int]) -> Path:
-    """Move the damaged checkpoints ``steps`` out of orbax's sight, into DIR/damaged_checkpoints/."""
-    aside = out / DAMAGED_CHECKPOINTS
-    aside.mkdir(exist_ok=True)
-    for step in steps:
-        target = aside / str(step)
-        copies = 0
-        while target.exists():
-            copies += 1
-            target = aside / f"{step}-{copies}"
-        os.replace(out / CHECKPOINTS / str(step), target)
-    return aside
-
-
 # ---------------------------------------------------------------- running
 
 def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, force: bool,
@@ -301,12 +156,12 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
     if fresh:
         # Before any checkpoint: a directory with checkpoints always says what made them.
         write_text_atomic(config_path, json.dumps(record | {"engine": sim.engine.name}, indent=1))
-    manager = _manager(out, writer=True)
+    manager = manager_of(out, writer=True)
     if manager.all_steps():
         state, step, damaged = restore_state(manager, state, spec)
         if damaged:
-            aside = _set_aside(out, [d for d, _ in damaged])
-            notice(f"{out}: {_damage_text(step, damaged)}; the damaged ones are moved to {aside}")
+            aside = set_aside(out, [d for d, _ in damaged])
+            notice(f"{out}: {damage_text(step, damaged)}; the damaged ones are moved to {aside}")
             manager.reload()
     return sim, task, state, manager
 
@@ -325,7 +180,7 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     try:
         state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard)
     finally:
-        _written(out, manager.wait_until_finished)
+        written(out, manager.wait_until_finished)
     return sim, task, state, time.perf_counter() - start
 
 
@@ -342,7 +197,7 @@ def learn_to_end(out: Path, sim: Simulation, task: train.Task, spec: train.RunSp
 
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
         if checkpoints is not None:
-            _written(out, lambda: _save_next(checkpoints, new_state, spec))
+            written(out, lambda: save_next(checkpoints, new_state, spec))
         book = jax.device_get(new_state.learners.book)
         done = train.done_mask(task, new_state.learners)
         measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
@@ -398,7 +253,7 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     """
     out = Path(out)
     spec, record = read_config(out)
-    manager = _manager(out)
+    manager = manager_of(out)
     if not manager.all_steps():
         raise RunError(f"{out} has no checkpoint")
     sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
@@ -409,7 +264,7 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
         record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
     state, step, damaged = restore_state(manager, train.init_run(recorded, task, spec), spec)
     if damaged:
-        notice(f"{out}: {_damage_text(step, damaged)}")
+        notice(f"{out}: {damage_text(step, damaged)}")
     if robot != "nominal":
         state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
     return LoadedRun(spec, sim, task, state)
