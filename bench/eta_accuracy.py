@@ -9,7 +9,7 @@ A run resumed in several sessions counts the pauses between them as time left.""
 import sys
 from pathlib import Path
 
-from mjxcpg.events import EVENTS_DIR, RUN_NAME, read_events
+from mjxcpg.training.events import EVENTS_DIR, RUN_NAME, read_events
 
 FRACTIONS = (0.1, 0.5, 0.9)
 

@@ -14,8 +14,9 @@ A second table gives the mean pelvis height of the same walks, the other term of
 
 import jax.numpy as jnp
 
-from mjxcpg import policy, walk
-from mjxcpg.sim import make_simulation
+from mjxcpg.control import walk
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.learning import policy
 
 GAINS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 

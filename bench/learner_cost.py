@@ -17,8 +17,12 @@ import time
 
 import jax
 
-from mjxcpg import bench, engines, train, xla
-from mjxcpg.sim import make_simulation
+from mjxcpg import bench
+from mjxcpg.bench import workloads
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.jaxutil import xla
+from mjxcpg.physics import engines
+from mjxcpg.training import train
 
 
 class NoPhysics(engines.NativeEngine):
@@ -31,7 +35,7 @@ class NoPhysics(engines.NativeEngine):
 def learner_us_per_period(batch: int, steps: int, calls: int) -> float:
     sim = make_simulation("native")
     sim.engine = NoPhysics(sim.model, sim.engine.substeps)
-    spec, task = bench._learners(sim, batch)
+    spec, task = workloads.benchmark_learners(sim, batch)
     chunk = train.make_chunk(sim, task, steps)
     state, initial = train.init_run(sim, task, spec), sim.engine.init(sim.qpos0, batch)
     state = jax.block_until_ready(chunk(state, initial))

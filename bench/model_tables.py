@@ -23,9 +23,9 @@ import time
 
 import jax.numpy as jnp
 
-from mjxcpg import walk
-from mjxcpg.controller import ControllerParams, roll_rate_feedback
-from mjxcpg.sim import make_simulation
+from mjxcpg.control import walk
+from mjxcpg.control.controller import ControllerParams, roll_rate_feedback
+from mjxcpg.control.sim import make_simulation
 
 SECONDS = 20.0
 GAINS = (0.0, 0.5, 1.0, 2.0)

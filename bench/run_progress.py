@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxcpg import runs
+from mjxcpg.training import runs
 
 
 def main(run_dirs: list[str]) -> None:

@@ -16,8 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg import runs, walk
-from mjxcpg.learner import policy_mean_feedback
+from mjxcpg.control import walk
+from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.training import runs
 
 RELATIVE_PERTURBATION = 1e-6
 

@@ -1,4 +1,4 @@
-"""Choose the physics step and the control period by measurement (issue 5, deliverable 3).
+"""Choose the physics step and the control period by measurement.
 
 For each (physics step, control period) on a ladder, and for the same pair halved, this
 measures on the native engine:
@@ -24,11 +24,13 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg import report, runs, walk, xla
-from mjxcpg.controller import ControllerParams, roll_rate_feedback
-from mjxcpg.learner import TrialParams
-from mjxcpg.sim import make_simulation
-from mjxcpg.train import RunSpec
+from mjxcpg.control import walk
+from mjxcpg.control.controller import ControllerParams, roll_rate_feedback
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.jaxutil import xla
+from mjxcpg.learning.learner import TrialParams
+from mjxcpg.training import report, runs
+from mjxcpg.training.train import RunSpec
 
 LADDER = ((0.002, 0.004), (0.004, 0.008), (0.008, 0.008), (0.008, 0.016), (0.016, 0.016))
 HAND_GAINS = (0.0, 0.5, 1.0, 2.0)

@@ -7,12 +7,14 @@ import json
 from pathlib import Path
 from typing import Callable, Iterable
 
-from mjxcpg import evaluate as evaluation
-from mjxcpg import report, runs, train, transfer
-from mjxcpg.config import load_spec, spec_to_dict, validate
-from mjxcpg.evaluate import EvalParams
-from mjxcpg.runs import load_run
-from mjxcpg.train import RunSpec
+from mjxcpg.evaluation import evaluate, transfer
+from mjxcpg.evaluation import report as evaluation_report
+from mjxcpg.evaluation.protocol import EvalParams
+from mjxcpg.training import report as run_report
+from mjxcpg.training import runs, train
+from mjxcpg.training.config import load_spec, spec_to_dict, validate
+from mjxcpg.training.runs import load_run
+from mjxcpg.training.train import RunSpec
 
 __all__ = ["RunSpec", "EvalParams", "load_spec", "sweep", "load_run", "evaluate_policies", "EVALUATIONS"]
 
@@ -38,7 +40,7 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
             return finished_summary(out, spec)
         sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
                                                 tensorboard=tensorboard, allow_other_code=allow_other_code)
-        summary = report.write_report(out, spec, sim, task, state)
+        summary = run_report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary
 
@@ -71,7 +73,7 @@ def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None
     spec, sim, task, state = load_run(run_dir, engine, robot=robot)
     chosen = runs.check_learners(spec, learners)
     parts = [p for p in EVALUATIONS if p in set(parts)]
-    result = evaluation.evaluate_run(spec, sim, task, state, chosen, params, robot=robot, parts=parts,
+    result = evaluate.evaluate_run(spec, sim, task, state, chosen, params, robot=robot, parts=parts,
                                      progress=progress)
     if robot == "hardware" and "transfer" in parts:
         if progress:
@@ -80,6 +82,6 @@ def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None
                                                         repeats=transfer_repeats)
     # Each robot's evaluation has its own place, so that one never overwrites the other's.
     out = Path(out) if out else run_dir if robot == "nominal" else run_dir / robot
-    table1_text = report.table1(train.learner_results(spec, state.learners))
-    summary = report.write_eval_report(run_dir, result, out, table1_text)
+    table1_text = run_report.table1(train.learner_results(spec, state.learners))
+    summary = evaluation_report.write_eval_report(run_dir, result, out, table1_text)
     return {"report": str(out / "report.md"), "engine": result["engine"], "robot": robot, **summary}

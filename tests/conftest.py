@@ -12,7 +12,9 @@ One feedback function serves the whole batch: a_5 = gain d theta_roll/dt + a_max
 with w = 0 (so mu = 0 and g(0) = 0) for the first two robots and gain 0 for the learned one.
 """
 
+import hashlib
 import json
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -21,13 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxcpg import actor_critic as ac
-from mjxcpg import config, walk
 from mjxcpg.cli import main
-from mjxcpg.controller import roll_rate_feedback
-from mjxcpg.learner import policy_mean_feedback
-from mjxcpg.sim import make_simulation
-from mjxcpg.train import RunSpec, make_task
+from mjxcpg.control import walk
+from mjxcpg.control.controller import roll_rate_feedback
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.learning import actor_critic as ac
+from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.training import config
+from mjxcpg.training.train import RunSpec, make_task
 
 WALK_SECONDS = 20.0
 HAND, STEPPING, LEARNED = 0, 1, 2            # robots of the session walks
@@ -47,6 +50,11 @@ class MixedFeedback(NamedTuple):
 
     roll_rate_gain: jax.Array
     policy: ac.Weights
+
+
+def model_fingerprint(mjcf: str) -> str:
+    """SHA-256 of an MJCF without its comments: the model, not its prose."""
+    return hashlib.sha256(re.sub(r"<!--.*?-->", "", mjcf, flags=re.S).encode()).hexdigest()
 
 
 def load_learned_policy() -> dict:

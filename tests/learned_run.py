@@ -11,8 +11,8 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from mjxcpg import config, runs, train
-from mjxcpg.sim import make_simulation
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.training import checkpoints, config, train
 
 STORED_POLICY = Path(__file__).resolve().parent / "data" / "learned_policy_ks10_seed1.json"
 
@@ -30,5 +30,5 @@ def make_learned_run(out: Path, engine: str = "native") -> Path:
     state = state._replace(learners=state.learners._replace(weights=weights, book=book))
     out.mkdir(parents=True)
     (out / "config.json").write_text(json.dumps({"spec": config.spec_to_dict(spec), "engine": engine}))
-    runs.write_checkpoint(out, state, spec)
+    checkpoints.write_checkpoint(out, state, spec)
     return out

@@ -45,7 +45,7 @@ def test_walk_json_is_the_last_line(capsys):
 def test_the_program_gives_xla_one_cpu_thread_unless_nproc_is_set(monkeypatch):
     import os
 
-    from mjxcpg import xla
+    from mjxcpg.jaxutil import xla
 
     monkeypatch.delenv("NPROC", raising=False)
     xla.one_cpu_thread()

@@ -10,7 +10,6 @@ float32 rounding, amplified by the conditioning of the solve.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from typing import NamedTuple
 
@@ -20,14 +19,17 @@ import mujoco
 import numpy as np
 import orbax.checkpoint as ocp
 import pytest
-from conftest import HAND, LEARNED, load_learned_policy
+from conftest import HAND, LEARNED, load_learned_policy, model_fingerprint
 
-from mjxcpg import engines, runs, walk
 from mjxcpg.cli import main
-from mjxcpg.config import load_spec
-from mjxcpg.controller import control_step, joint_targets, roll_rate_feedback
-from mjxcpg.robot import MODEL_RESOURCE, Layout, observe
-from mjxcpg.sim import make_simulation
+from mjxcpg.control import walk
+from mjxcpg.control.controller import control_step, joint_targets, roll_rate_feedback
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.physics import engines
+from mjxcpg.physics.model import Layout, observe
+from mjxcpg.robots.qrio import QRIO
+from mjxcpg.training import checkpoints
+from mjxcpg.training.config import load_spec
 
 SEED = 0
 ONE_STEP_STATES = 100
@@ -295,7 +297,7 @@ def test_stored_policy_was_learned_on_this_model():
     tests/data/make_learned_policy.py when the model changes)."""
     record = load_learned_policy()
     assert record["command"].startswith("mjxcpg learn --k-s 10 --seed 1 --engine native")
-    assert record["model_sha256"] == hashlib.sha256(MODEL_RESOURCE.read_bytes()).hexdigest(), (
+    assert record["model_sha256"] == model_fingerprint(QRIO.mjcf_resource().read_text()), (
         f"tests/data policy was learned at {record['git_commit']} on another model")
     assert record["trials_to_success"] is not None and record["trials_to_success"] > 0
     assert len(record["policy_mean_weights"]) == record["basis_grid"] ** 2
@@ -307,10 +309,10 @@ def test_checkpoint_round_trip_keeps_empty_leaves(tmp_path):
     them, so a checkpoint leaves them out and a restore takes them from its template."""
     spec = load_spec("quick")
     state = {"empty": np.zeros((spec.batch, 0), np.float32), "qpos": np.arange(6.0).reshape(spec.batch, 2)}
-    manager = runs._manager(tmp_path, writer=True)
-    manager.save(1, args=ocp.args.StandardSave(runs._leaves(state, spec)))
+    manager = checkpoints.manager_of(tmp_path, writer=True)
+    manager.save(1, args=ocp.args.StandardSave(checkpoints.checkpoint_leaves(state, spec)))
     manager.wait_until_finished()
-    restored, _, _ = runs.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
+    restored, _, _ = checkpoints.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
     assert restored["empty"].shape == (spec.batch, 0)
     np.testing.assert_array_equal(restored["qpos"], state["qpos"])
 
@@ -324,8 +326,8 @@ def quick_mjx_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_mjx_runs_the_quick_sweep(quick_mjx_run):
-    """The MJX path runs the `quick` config end to end on the CPU (minutes: two large MJX
-    compiles, the learning chunk and the report's walk), and its bookkeeping adds up: one
+    """The MJX path runs the `quick` config end to end on the CPU (two large MJX compiles, the
+    learning chunk and the report's walk), and its bookkeeping adds up: one
     learner per (k_s, seed) of the config, trial counts within the budget, success only after
     ``success_streak`` successive trials without a fall, Table 1 totals matching summary.json.
     Outcomes are not compared with the C engines' run of `quick`: the physics differ."""

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from learned_run import make_learned_run
 
-from mjxcpg import evaluate, runs
 from mjxcpg.cli import main
-from mjxcpg.sim import make_simulation
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.evaluation import evaluate
+from mjxcpg.evaluation import protocol as eval_protocol
+from mjxcpg.training import runs
 
 SMALL = ["--fixed-point-steps", "4", "--perturbations", "4", "--slope-seconds", "3",
          "--max-slope-deg", "1", "--push-rounds", "1"]
@@ -44,7 +46,7 @@ def test_eval_writes_json_plots_and_report(evaluated):
     assert rm["fixed_point"] > 0, "the left foot lands ahead of the right while walking forward"
     assert abs(rm["eigenvalue"]) < 1, "a walking learned policy is locally stable"
     assert learner["slopes"]["uphill_deg"] is not None and learner["slopes"]["downhill_deg"] <= 0
-    assert set(learner["pushes"]) == set(evaluate.PUSH_DIRECTIONS)
+    assert set(learner["pushes"]) == set(eval_protocol.PUSH_DIRECTIONS)
     report = (evaluated / "report.md").read_text()
     for figure in ("-0.0101", "+3", "-4", "0.077", "## Table 1", "## Pushes"):
         assert figure in report
@@ -57,7 +59,7 @@ def test_return_map_is_deterministic_and_robots_do_not_interact(learned_run):
     """Two copies of the same learner under the same key in one batch: identical figures,
     and identical again on a second evaluation."""
     _, sim, task, state = runs.load_run(learned_run, "native")
-    params = evaluate.EvalParams(fixed_point_steps=3, perturbations=3)
+    params = eval_protocol.EvalParams(fixed_point_steps=3, perturbations=3)
     weights = jax.tree.map(lambda w: jnp.concatenate([w, w]), state.learners.weights)
     first = evaluate.evaluate_return_map(sim, task, weights, [0, 0], params)
     again = evaluate.evaluate_return_map(sim, task, weights, [0, 0], params)
@@ -99,20 +101,20 @@ def test_return_map_protocol_phases():
     """Baseline touchdowns, then perturbation onset, x_n at the next touchdown, x_{n+1} at
     the one after, then done; the offset is applied exactly while perturbing."""
     sim = make_simulation("mujoco")
-    params = evaluate.EvalParams(fixed_point_steps=2, perturbations=1, settle_seconds=0.0,
+    params = eval_protocol.EvalParams(fixed_point_steps=2, perturbations=1, settle_seconds=0.0,
                                  recovery_seconds=0.008, onset_jitter_seconds=0.008)
-    protocol = evaluate.make_protocol("return_map", params, sim.layout, sim.control_dt)
-    probe = evaluate.init_probe(protocol, jax.random.PRNGKey(0), jnp.zeros(3))
-    advance = jax.jit(lambda p, t, td, i: evaluate.advance_probe(protocol, p, t, td, i))
-    drive = jax.jit(lambda p, t: evaluate.probe_drive(protocol, p, t)[0])
+    protocol = eval_protocol.make_protocol("return_map", params, sim.layout, sim.control_dt)
+    probe = eval_protocol.init_probe(protocol, jax.random.PRNGKey(0), jnp.zeros(3))
+    advance = jax.jit(lambda p, t, td, i: eval_protocol.advance_probe(protocol, p, t, td, i))
+    drive = jax.jit(lambda p, t: eval_protocol.probe_drive(protocol, p, t)[0])
     touchdowns = {5: 0, 10: 1, 15: 2, 20: 3, 25: 4}   # control period -> touchdown index
     offsets, phases = [], []
     for t in range(30):
         probe = advance(probe, jnp.int32(t), jnp.bool_(t in touchdowns), jnp.int32(touchdowns.get(t, -1)))
         offsets.append(float(drive(probe, jnp.int32(t))))
         phases.append(int(probe.phase))
-    assert phases[15] == evaluate.WAITING and phases[16] == evaluate.PERTURBING
-    assert phases[20] == evaluate.AFTER and phases[25] == evaluate.DONE
+    assert phases[15] == eval_protocol.WAITING and phases[16] == eval_protocol.PERTURBING
+    assert phases[20] == eval_protocol.AFTER and phases[25] == eval_protocol.DONE
     assert int(probe.perturbed_touchdown[0]) == 3
     applied = [t for t, o in enumerate(offsets) if o != 0]
     assert applied == list(range(16, 20)) and offsets[16] == float(probe.offsets[0])
@@ -124,7 +126,7 @@ def test_tilted_floor_reaches_the_c_engines():
 
     import mujoco
 
-    from mjxcpg.robot import load_model
+    from mjxcpg.physics.model import load_model
 
     model = load_model(5.0)
     data = mujoco.MjData(model)

@@ -13,12 +13,15 @@ import numpy as np
 import pytest
 
 from learned_run import make_learned_run
-from mjxcpg import engines, estimator, hardware, runs, train, transfer, walk
 from mjxcpg.cli import main
-from mjxcpg.controller import control_step, hand_feedback
-from mjxcpg.learner import init_learner
-from mjxcpg.robot import Sensors, load_model, observe
-from mjxcpg.sim import make_simulation
+from mjxcpg.control import estimator, walk
+from mjxcpg.control.controller import control_step, hand_feedback
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.evaluation import transfer
+from mjxcpg.learning.learner import init_learner
+from mjxcpg.physics import engines, hardware
+from mjxcpg.physics.model import Sensors, load_model, observe
+from mjxcpg.training import runs, train
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "hardware.md"
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg import ik
+from mjxcpg.control import ik
 
 
 def test_round_trip_through_mujoco(mujoco_sim):

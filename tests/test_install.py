@@ -32,7 +32,7 @@ def test_the_wheel_installs_and_sweeps_from_another_directory(tmp_path):
     [wheel] = (tmp_path / "dist").glob("mjxcpg-*.whl")
     assert wheel.name.startswith(f"mjxcpg-{mjxcpg.__version__}-")
     names = set(zipfile.ZipFile(wheel).namelist())
-    assert {"mjxcpg/configs/quick.toml", "mjxcpg/configs/paper.toml", "mjxcpg/models/qrio.xml"} <= names
+    assert {"mjxcpg/configs/quick.toml", "mjxcpg/configs/paper.toml", "mjxcpg/robots/qrio/qrio.xml"} <= names
 
     # nothing of this checkout or of the test's environment may be seen from the fresh one
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}

@@ -9,8 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg import actor_critic as ac
-from mjxcpg import ngnet, policy
+from mjxcpg.learning import actor_critic as ac
+from mjxcpg.learning import ngnet, policy
 
 BASIS = ngnet.make_basis()
 NUM_BASIS = BASIS.centers.shape[0]

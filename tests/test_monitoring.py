@@ -10,9 +10,9 @@ import pytest
 from tensorboard.backend.event_processing.event_file_loader import RawEventFileLoader
 from tensorboard.compat.proto.event_pb2 import Event
 
-from mjxcpg.events import RunEvents, read_scalars
-from mjxcpg.learner import TrialParams
-from mjxcpg.progress import expected_total_trials, remaining_seconds_simulated
+from mjxcpg.learning.learner import TrialParams
+from mjxcpg.training.events import RunEvents, read_scalars
+from mjxcpg.training.progress import expected_total_trials, remaining_seconds_simulated
 
 
 def tensorboard_scalars(directory: Path) -> dict[str, list[tuple[int, float]]]:

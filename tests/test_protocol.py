@@ -14,11 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxcpg import actor_critic as ac
-from mjxcpg import ngnet
-from mjxcpg.learner import Draws, TrialParams, Task, home_ctrl, init_learner, is_done, learner_step
-from mjxcpg.controller import ControllerParams
-from mjxcpg.robot import Layout, Sensors, load_model
+from mjxcpg.control.controller import ControllerParams
+from mjxcpg.learning import actor_critic as ac
+from mjxcpg.learning import ngnet
+from mjxcpg.learning.learner import Draws, TrialParams, Task, home_ctrl, init_learner, is_done, learner_step
+from mjxcpg.physics.model import Layout, Sensors, load_model
 
 DT = 0.008
 HANDOVER_STEP = 3                   # hand_seconds = (0.024, 0.024): the learner acts from step 3

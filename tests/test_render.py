@@ -13,14 +13,15 @@ import numpy as np
 import pytest
 
 from learned_run import make_learned_run
-from mjxcpg.render import headless_gl_backend, write_mp4
+from mjxcpg.evaluation.render import headless_gl_backend, write_mp4
 
 RENDER_SCRIPT = """
 import json, sys
 from pathlib import Path
 import numpy as np
-from mjxcpg import render
-from mjxcpg.robot import Layout, load_model, standing_qpos
+from mjxcpg.control.sim import standing_qpos
+from mjxcpg.evaluation import render
+from mjxcpg.physics.model import Layout, load_model
 
 model = load_model()
 qpos = np.stack([standing_qpos(model, Layout.of(model), x0, 0.215) for x0 in (0.0, 0.02, 0.04)])

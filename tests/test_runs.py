@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mjxcpg import config, provenance, runs
 from mjxcpg.cli import main
+from mjxcpg.training import checkpoints, config, provenance, runs
 
 SWEEP = ["sweep", "--config", "quick", "--quiet", "--engine", "native"]
 RESULTS = ("summary.json", "returns.json")
@@ -47,7 +47,7 @@ def unfinished_copy(finished: Path, into: Path) -> Path:
 
 
 def checkpoint_steps(run: Path) -> list[int]:
-    return sorted(int(p.name) for p in (run / runs.CHECKPOINTS).iterdir() if p.name.isdigit())
+    return sorted(int(p.name) for p in (run / checkpoints.CHECKPOINTS).iterdir() if p.name.isdigit())
 
 
 def tear(step_dir: Path) -> None:
@@ -77,12 +77,12 @@ def tree_bytes(root: Path) -> dict:
 def test_torn_latest_checkpoint_falls_back_and_ends_as_uninterrupted(finished_quick, tmp_path, capsys):
     run = unfinished_copy(finished_quick, tmp_path)
     newest, previous = checkpoint_steps(run)[-1], checkpoint_steps(run)[-2]
-    tear(run / runs.CHECKPOINTS / str(newest))
+    tear(run / checkpoints.CHECKPOINTS / str(newest))
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
     notices = [line for line in capsys.readouterr().err.splitlines() if "damaged" in line]
     assert len(notices) == 1
     assert f"checkpoint {newest} is damaged" in notices[0] and f"using checkpoint {previous}" in notices[0]
-    assert (run / runs.DAMAGED_CHECKPOINTS / str(newest)).is_dir()  # kept, out of the way
+    assert (run / checkpoints.DAMAGED_CHECKPOINTS / str(newest)).is_dir()  # kept, out of the way
     assert_same_results(run, finished_quick)
 
 
@@ -100,7 +100,7 @@ def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, t
     old = config.spec_to_dict(spec)
     del old["learner"]["unit_slope"]
     by_hand = np.frombuffer(hashlib.sha256(json.dumps(old, sort_keys=True).encode()).digest(), np.uint8)
-    assert any(np.array_equal(by_hand, f) for f in runs._accepted_fingerprints(spec))
+    assert any(np.array_equal(by_hand, f) for f in checkpoints._accepted_fingerprints(spec))
     with_slope = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, unit_slope=True))
     assert config.earlier_spec_dicts(with_slope) == []   # earlier code could not have run it
 
@@ -108,15 +108,15 @@ def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, t
 def test_corrupted_checkpoint_is_caught_by_its_sha256(finished_quick, tmp_path):
     run = unfinished_copy(finished_quick, tmp_path)
     steps = checkpoint_steps(run)
-    corrupt(run / runs.CHECKPOINTS / str(steps[-1]))
-    step, _, damaged = runs.newest_intact(runs._manager(run))
+    corrupt(run / checkpoints.CHECKPOINTS / str(steps[-1]))
+    step, _, damaged = checkpoints.newest_intact(checkpoints.manager_of(run))
     assert step == steps[-2] and [d for d, _ in damaged] == [steps[-1]]
 
 
 def test_no_intact_checkpoint_is_one_line_error_and_nothing_is_deleted(finished_quick, tmp_path, capsys):
     run = unfinished_copy(finished_quick, tmp_path)
     for step in checkpoint_steps(run):
-        (tear if step % 2 else corrupt)(run / runs.CHECKPOINTS / str(step))
+        (tear if step % 2 else corrupt)(run / checkpoints.CHECKPOINTS / str(step))
     before = tree_bytes(run)
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 2
     assert "no intact checkpoint" in one_line_error(capsys.readouterr().err)
@@ -143,7 +143,7 @@ def test_full_disk_keeps_the_previous_checkpoint_and_is_one_line_error(finished_
     assert main(SWEEP + ["--out", str(run)]) == 2
     assert "No space left on device" in one_line_error(capsys.readouterr().err)
     assert not runs.is_finished(run)
-    step, _, damaged = runs.newest_intact(runs._manager(run))
+    step, _, damaged = checkpoints.newest_intact(checkpoints.manager_of(run))
     assert (step, damaged) == (2, [])
     monkeypatch.setattr(async_path, "write_text", write_text)
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
@@ -187,7 +187,8 @@ def test_code_identity_follows_sources_and_model(tmp_path):
     same = provenance.code_identity(package, models)
     assert provenance.differences(same, provenance.code_identity()) == []
     assert provenance.differences(None, same) == ["the run has no record of its code"]
-    (package / "learner.py").write_text((package / "learner.py").read_text() + "\n# changed\n")
+    learner = package / "learning" / "learner.py"
+    learner.write_text(learner.read_text() + "\n# changed\n")
     assert [d.split()[0] for d in provenance.differences(same, provenance.code_identity(package, models))] \
         == ["source_sha256"]
     model = next(models.rglob("*.xml"))
@@ -232,12 +233,12 @@ def test_finished_run_is_never_resumed_over(finished_quick, tmp_path, capsys):
 
 def _tmp_writes(run: Path) -> list[str]:
     """Checkpoints being written: orbax's temporary directories."""
-    folder = run / runs.CHECKPOINTS
+    folder = run / checkpoints.CHECKPOINTS
     return [n for n in os.listdir(folder) if "tmp" in n] if folder.is_dir() else []
 
 
 def _steps(run: Path) -> set[int]:
-    folder = run / runs.CHECKPOINTS
+    folder = run / checkpoints.CHECKPOINTS
     return {int(n) for n in os.listdir(folder) if n.isdigit()} if folder.is_dir() else set()
 
 

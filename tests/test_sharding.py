@@ -7,7 +7,7 @@ import sys
 import jax
 
 from mjxcpg.cli import main
-from mjxcpg.train import learner_sharding
+from mjxcpg.training.train import learner_sharding
 
 EIGHT_LEARNERS = """
 k_s = [10.0, 10.0, 5.0, 5.0, 0.0, 0.0, 10.0, 2.0]
@@ -24,7 +24,7 @@ SHARDED = """
 import sys
 import jax
 from mjxcpg.cli import main
-from mjxcpg.train import learner_sharding
+from mjxcpg.training.train import learner_sharding
 assert len(learner_sharding(8).mesh.devices.flat) == 4, jax.devices()
 sys.exit(main(sys.argv[1:]))
 """

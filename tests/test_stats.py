@@ -1,8 +1,8 @@
-"""Intervals and trends of mjxcpg.stats against closed forms."""
+"""Intervals and trends of mjxcpg.training.stats against closed forms."""
 
 import numpy as np
 
-from mjxcpg import stats
+from mjxcpg.training import stats
 
 
 def test_spearman_of_monotone_and_reversed_orders():

@@ -16,9 +16,9 @@ import pytest
 from conftest import HAND, STEPPING
 from test_monitoring import tensorboard_scalars
 
-from mjxcpg import config, train
 from mjxcpg.cli import main
-from mjxcpg.sim import make_simulation
+from mjxcpg.control.sim import make_simulation
+from mjxcpg.training import config, train
 
 
 def test_sweep_writes_the_report(finished_quick, quick_spec):
@@ -167,8 +167,7 @@ def test_learning_beats_the_controls(tmp_path):
     """Three k_s = 10 learners in the stats config's set-up against controls (a) and (b) of
     the same protocol: no learner of control (a) (learning off, sigma as initialised) meets
     the success criterion, and the learners earn more reward over their last 20 trials than
-    control (b) (learning off, sigma at its smallest), on average over the three seeds.
-    Several minutes on 2 cores."""
+    control (b) (learning off, sigma at its smallest), on average over the three seeds."""
     stats_spec = config.load_spec("stats")
     text = ("k_s = [10.0, 10.0, 10.0]\nseeds = [100, 101, 102]\n[trial]\nmax_trials = 400\n"
             f"trials_after_success = {stats_spec.trial.trials_after_success}\n[learner]\n"

@@ -5,7 +5,7 @@ import dataclasses
 import jax.numpy as jnp
 import pytest
 
-from mjxcpg import walk
+from mjxcpg.control import walk
 
 HAND, STEPPING = 0, 1
 

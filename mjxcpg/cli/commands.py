@@ -1,0 +1,188 @@
+"""The commands of ``mjxcpg``: each takes the parsed arguments and returns what is printed
+(a dict, or None).  MuJoCo and JAX are imported inside the commands, so that ``render`` can
+choose its OpenGL back end before MuJoCo reads it."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+
+class UserError(Exception):
+    """Bad input: reported as one line, exit status 2."""
+
+
+def cmd_walk(args: argparse.Namespace) -> dict:
+    import jax.numpy as jnp
+
+    from mjxcpg.control import walk
+    from mjxcpg.control.controller import roll_rate_feedback
+    from mjxcpg.control.sim import make_simulation
+
+    if args.checkpoint is not None:
+        import jax
+
+        from mjxcpg.learning.learner import policy_mean_feedback
+        from mjxcpg.training.runs import check_learners, load_run
+
+        spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
+        check_learners(spec, [args.learner])
+        feedback = policy_mean_feedback(task)
+        fb_params = jax.tree.map(lambda w: w[args.learner:args.learner + 1], state.learners.weights)
+    else:
+        sim = make_simulation(args.engine, args.slope)
+        if args.controller == "in-place":
+            sim.params = dataclasses.replace(sim.params, amp_x=0.0)
+        gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[args.controller]
+        feedback = roll_rate_feedback
+        fb_params = jnp.array([gain])
+    trace = walk.walk_from_standing(sim, feedback, fb_params, args.seconds)
+    summary = walk.summarise(trace, sim.control_dt)[0].as_dict()
+    summary.update(engine=sim.engine.name, slope_deg=args.slope,
+                   controller="learned" if args.checkpoint else args.controller)
+    return summary
+
+
+def _learn_or_sweep(spec, args, out: Path) -> dict:
+    """Run (or resume) ``spec`` in ``out`` and write its report, ``out`` locked meanwhile."""
+    from mjxcpg import api
+
+    return api.sweep(spec, out, args.engine, resume=args.resume, force=args.force, progress=not args.quiet,
+                     tensorboard=args.tensorboard, allow_other_code=args.allow_other_code)
+
+
+def cmd_learn(args: argparse.Namespace) -> dict:
+    from mjxcpg.learning.learner import TrialParams
+    from mjxcpg.training.config import validate
+    from mjxcpg.training.files import write_text_atomic
+    from mjxcpg.training.runs import locked
+    from mjxcpg.training.train import RunSpec
+
+    if args.from_run is not None:
+        return _learn_online(args)
+    if args.robot != "nominal" or args.reward is not None:
+        raise UserError("--robot and --reward need --from: learning from scratch runs on the nominal robot")
+    args.k_s = 10.0 if args.k_s is None else args.k_s
+    args.seed = 0 if args.seed is None else args.seed
+    spec = validate(RunSpec(k_s=(args.k_s,), seeds=(args.seed,),
+                            trial=TrialParams(max_trials=1000 if args.trials is None else args.trials)))
+    out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
+    summary = _learn_or_sweep(spec, args, out)
+    learn_path = out / "learn.json"
+    with locked(out):  # the run's files, renamed and added to
+        if learn_path.is_file():  # a finished run, resumed: its record stays as it is
+            result = json.loads(learn_path.read_text())
+        else:
+            learner = summary["learners"][0]
+            returns = json.loads((out / "returns.json").read_text())[0]
+            result = {"succeeded": learner["succeeded"], "trials_to_success": learner["trials_to_success"],
+                      "trials": learner["trials"], "mean_vx": learner["mean_vx"],
+                      "final_policy_fell": learner["final_policy_fell"],
+                      "policy_input_gradient": learner["policy_input_gradient"],
+                      "wall_s": summary["wall_s"], "engine": summary["engine"], "out": str(out),
+                      "returns": returns["returns"], "falls": returns["falls"]}
+            for name, short in ((f"learning_curve_ks{args.k_s:g}.png", "learning_curve.png"),
+                                ("policy_map_00.png", "policy_map.png")):
+                if (out / name).is_file():
+                    (out / name).replace(out / short)
+            write_text_atomic(learn_path, json.dumps(result, indent=1))
+    return {k: v for k, v in result.items() if k not in ("returns", "falls")}
+
+
+def _learn_online(args: argparse.Namespace) -> dict:
+    """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.training.online)."""
+    from mjxcpg.training import online
+
+    if args.k_s is not None or args.seed is not None:
+        raise UserError("--k-s and --seed come from the checkpoint with --from")
+    if args.resume or args.allow_other_code:
+        raise UserError("--resume and --allow-other-code do not apply to --from; rerun with --force")
+    source = Path(args.from_run)
+    out = Path(args.out or f"runs/online_{source.name}_learner{args.learner}_{args.robot}")
+    trials = 400 if args.trials is None else args.trials
+    return online.learn_online(source, args.learner, out, trials=trials, robot=args.robot,
+                               reward=args.reward, engine=args.engine, force=args.force,
+                               progress=not args.quiet, tensorboard=args.tensorboard) | {"out": str(out)}
+
+
+def cmd_render(args: argparse.Namespace) -> dict:
+    from mjxcpg.evaluation import render
+
+    out = Path(args.out or Path(args.run) / "render")
+    try:
+        return render.render_gait(Path(args.run), args.learner, out, seconds=args.seconds,
+                                  engine=args.engine, robot=args.robot, gif=args.gif)
+    except render.RenderError as error:
+        raise UserError(str(error)) from None
+
+
+def cmd_sweep(args: argparse.Namespace) -> dict:
+    from mjxcpg.training.config import load_spec
+
+    spec = load_spec(args.config)
+    out = Path(args.out or f"runs/{Path(args.config).stem}")
+    summary = _learn_or_sweep(spec, args, out)
+    print((out / "table1.md").read_text())
+    ok = sum(r["succeeded"] for r in summary["learners"])
+    return {"out": str(out), "learners": len(summary["learners"]), "succeeded": ok,
+            "wall_s": summary["wall_s"], "engine": summary["engine"]}
+
+
+def cmd_controls(args: argparse.Namespace) -> dict:
+    from mjxcpg.training import controls
+
+    run_dir = Path(args.run)
+    if not (run_dir / "summary.json").is_file():
+        raise UserError(f"{run_dir} holds no finished run (no summary.json); run the sweep first")
+    walls = controls.run_controls(run_dir, args.only or tuple(controls.CONTROLS),
+                                  trials=args.trials or controls.DEFAULT_TRIALS,
+                                  engine=args.engine, resume=args.resume, force=args.force,
+                                  progress=not args.quiet, tensorboard=args.tensorboard)
+    print((run_dir / "table1.md").read_text())
+    return {"out": str(run_dir / "controls"), "wall_s": walls}
+
+
+def cmd_transfer(args: argparse.Namespace) -> dict:
+    from mjxcpg.evaluation import transfer
+
+    if not (Path(args.run) / "summary.json").is_file():
+        raise UserError(f"{args.run} holds no finished run (no summary.json); run the sweep first")
+    result = transfer.walk_on_engines(Path(args.run), args.seconds)
+    for r in result["learners"]:
+        print(f"learner {r['learner']:3d}  k_s {r['k_s']:4g}  C {r['mean_vx_c']:.4f}  MJX {r['mean_vx_mjx']:.4f}"
+              f"  MJX/C {r['mjx_over_c']:.3f}" + ("  fell on C" if r["fell_c"] else "")
+              + ("  fell on MJX" if r["fell_mjx"] else ""))
+    return {k: v for k, v in result.items() if k != "learners"} | {"out": str(Path(args.run) / "transfer.json")}
+
+
+def cmd_eval(args: argparse.Namespace) -> dict:
+    """``eval --run DIR``: velocity (Fig 7), return map (Fig 8), slopes and pushes of the run's
+    final policies, all learners in one batch; JSON and PNG under OUT/eval, OUT/report.md."""
+    from mjxcpg import api
+
+    overrides = {name: getattr(args, name) for name in (
+        "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
+        if getattr(args, name) is not None}
+    progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
+    return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,
+                                 api.EvalParams(**overrides),
+                                 parts=[p for p in api.EVALUATIONS if p not in (args.skip or [])],
+                                 transfer_repeats=args.transfer_repeats, out=args.out, progress=progress)
+
+
+def cmd_bench(args: argparse.Namespace) -> dict | None:
+    """``bench``: robot-steps/s of every engine side by side (``mjxcpg.bench``).  The table goes
+    to stdout, or to stderr with --json so that stdout is the JSON report alone."""
+    from mjxcpg import bench
+
+    options = bench.Options(control_steps=args.control_steps, seconds=args.seconds,
+                            budget_seconds=args.budget_seconds)
+    log = None if args.quiet else (lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
+    result = bench.benchmark(args.engines, args.models, args.batches, args.workloads, options, log)
+    table = sys.stderr if args.json else sys.stdout
+    print(bench.format_table(result["results"], result["skipped"], args.engines), file=table)
+    print(bench.format_overheads(result["overheads"]), file=table)
+    return result if args.json else None

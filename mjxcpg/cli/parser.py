@@ -1,0 +1,178 @@
+"""The parser of ``mjxcpg``: subcommands, their options and the checks of their values."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections.abc import Callable
+
+import mjxcpg
+from mjxcpg.cli.commands import (cmd_bench, cmd_controls, cmd_eval, cmd_learn, cmd_render, cmd_sweep,
+                                 cmd_transfer, cmd_walk)
+from mjxcpg.training import checks
+
+DESCRIPTION = "The mjxcpg command line: walk, learn, sweep, controls, transfer, eval, render, bench."
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``--help`` still shows the usage)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _number(rule: checks.Range) -> Callable[[str], int | float]:
+    """An argparse type: the flag's text as a number that ``rule`` allows (``mjxcpg.training.checks``)."""
+    def parse(text: str) -> int | float:
+        try:
+            return checks.parse(text, rule)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from mjxcpg.control.sim import ROBOTS
+    from mjxcpg.physics.engines import ENGINES
+    from mjxcpg.physics.model import MAX_SLOPE_DEG
+    from mjxcpg.training.config import config_names, range_of
+
+    seconds = _number(checks.POSITIVE)
+    count = _number(checks.COUNT)
+    index = _number(checks.INDEX)
+    non_negative_count = _number(checks.NON_NEGATIVE_COUNT)
+    slope = _number(checks.Range(low=-MAX_SLOPE_DEG, high=MAX_SLOPE_DEG))
+
+    parser = _Parser(prog="mjxcpg", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {mjxcpg.__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    walk = sub.add_parser("walk", help="walk with a controller and report the gait")
+    walk.add_argument("--controller", choices=("hand", "stepping", "in-place"), default="hand",
+                      help="hand: hand-designed a_5; stepping: a_5 = 0; in-place: a_5 = 0 and A_x = 0")
+    walk.add_argument("--checkpoint", help="walk with the learned policy saved in this run directory")
+    walk.add_argument("--learner", type=index, default=0, help="learner index within a sweep checkpoint")
+    walk.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
+    walk.add_argument("--seconds", type=seconds, default=20.0)
+    walk.add_argument("--slope", type=slope, default=0.0, help="floor slope in degrees (uphill > 0)")
+    walk.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    walk.set_defaults(handler=cmd_walk)
+
+    def run_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
+        p.add_argument("--out", help="run directory (default: runs/...)")
+        p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+        p.add_argument("--force", action="store_true", help="replace an existing --out")
+        p.add_argument("--allow-other-code", action="store_true",
+                       help="with --resume: continue a run made by other code (recorded in its config.json)")
+        p.add_argument("--quiet", action="store_true", help="no progress line")
+        p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                       help="write no TensorBoard event files (OUT/tensorboard)")
+        p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+
+    learn = sub.add_parser("learn", help="one learner learns the propulsive feedback a_5")
+    learn.add_argument("--k-s", type=_number(range_of("k_s")), default=None, help="velocity reward gain k_S of eq 27 (default 10)")
+    learn.add_argument("--seed", type=_number(range_of("seeds")), default=None, help="default 0")
+    learn.add_argument("--trials", type=_number(range_of("trial.max_trials")), default=None,
+                       help="trial budget (default 1000; 400 with --from)")
+    learn.add_argument("--from", dest="from_run", metavar="DIR",
+                       help="continue learner --learner of this run (online additional learning)")
+    learn.add_argument("--learner", type=index, default=0, help="learner index within --from's run")
+    learn.add_argument("--robot", choices=ROBOTS, default="nominal",
+                       help="robot to continue on with --from (hardware: docs/hardware.md)")
+    learn.add_argument("--reward", choices=("estimate", "truth"), default=None,
+                       help="with --from: reward from the robot's sensors (default on hardware) "
+                            "or the simulator's state (default on nominal)")
+    run_options(learn)
+    learn.set_defaults(handler=cmd_learn)
+
+    sweep = sub.add_parser("sweep", help="many learners in lockstep (the paper's Table 1)")
+    sweep.add_argument("--config", default="paper",
+                       help=f"a config that ships with mjxcpg ({', '.join(config_names())}) or a .toml/.json path")
+    run_options(sweep)
+    sweep.set_defaults(handler=cmd_sweep)
+
+    ctl = sub.add_parser("controls", help="the run's protocol without learning, without a_5, and with "
+                         "the hand-designed feedback, beside its Table 1")
+    ctl.add_argument("--run", required=True, help="a finished sweep's run directory")
+    ctl.add_argument("--trials", type=count, default=None,
+                     help="trial budget of each control learner (default 400, at most the run's)")
+    ctl.add_argument("--only", nargs="+", choices=("learning_off", "learning_off_min_sigma", "zero_feedback",
+                                                   "hand_feedback"), help="run only these controls")
+    ctl.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
+    ctl.add_argument("--resume", action="store_true", help="continue controls already started")
+    ctl.add_argument("--force", action="store_true", help="replace controls already run")
+    ctl.add_argument("--quiet", action="store_true", help="no progress line")
+    ctl.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                     help="write no TensorBoard event files")
+    ctl.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    ctl.set_defaults(handler=cmd_controls)
+
+    tr = sub.add_parser("transfer", help="walk a run's final policies on MuJoCo C and on MJX")
+    tr.add_argument("--run", required=True, help="a finished run directory")
+    tr.add_argument("--seconds", type=seconds, default=20.0)
+    tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    tr.set_defaults(handler=cmd_transfer)
+
+    rend = sub.add_parser("render", help="filmstrip PNG and MP4 video of a learned gait (headless OpenGL)")
+    rend.add_argument("--run", required=True, help="run directory")
+    rend.add_argument("--learner", type=index, default=0, help="learner index within the run")
+    rend.add_argument("--seconds", type=seconds, default=10.0, help="length of the walk")
+    rend.add_argument("--robot", choices=ROBOTS, default="nominal")
+    rend.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
+    rend.add_argument("--out", help="output directory (default: RUN/render)")
+    rend.add_argument("--gif", action="store_true", help="also write the video's frames as an animated GIF")
+    rend.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    rend.set_defaults(handler=cmd_render)
+
+    evaluation = sub.add_parser("eval", help="evaluate a run's learned policies as the paper did "
+                                "(velocity, return map, slopes, pushes)")
+    evaluation.add_argument("--run", required=True, help="run directory (learn or sweep)")
+    evaluation.add_argument("--learner", type=index, nargs="+", help="learner indices (default: all)")
+    evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
+    evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
+    evaluation.add_argument("--seed", type=_number(checks.SEED), default=None, help="evaluation seed (default 0)")
+    evaluation.add_argument("--fixed-point-steps", type=non_negative_count, default=None,
+                            help="unperturbed gait cycles for velocity and fixed point (default 100)")
+    evaluation.add_argument("--perturbations", type=non_negative_count, default=None,
+                            help="return-map perturbations (default 50)")
+    evaluation.add_argument("--slope-seconds", type=seconds, default=None,
+                            help="walk on each slope this long (default 20)")
+    evaluation.add_argument("--max-slope-deg", type=_number(dataclasses.replace(checks.NON_NEGATIVE_COUNT, high=MAX_SLOPE_DEG)), default=None,
+                            help="steepest inclination tried each way (default 15)")
+    evaluation.add_argument("--push-rounds", type=non_negative_count, default=None,
+                            help="bisection rounds per push direction (default 7)")
+    evaluation.add_argument("--skip", nargs="+", choices=("return_map", "slopes", "pushes", "transfer"),
+                            help="evaluations to leave out (transfer: --robot hardware only)")
+    evaluation.add_argument("--transfer-repeats", type=count, default=20,
+                            help="with --robot hardware: walks per policy, each with other sensor noise")
+    evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
+                                           "with --robot hardware, its hardware/ subdirectory)")
+    evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
+    evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    evaluation.set_defaults(handler=cmd_eval)
+
+    from mjxcpg import bench
+
+    bench_parser = sub.add_parser("bench", help="robot-steps/s of every engine, batch size, model and "
+                                  "workload, side by side (bench/README.md)")
+    bench_parser.add_argument("--engines", nargs="+", choices=ENGINES, default=list(ENGINES))
+    bench_parser.add_argument("--models", nargs="+", choices=bench.MODELS, default=list(bench.MODELS),
+                              help="qrio: our robot; humanoid: MJX's benchmark model (physics only)")
+    bench_parser.add_argument("--batches", nargs="+", type=count, default=list(bench.BATCHES),
+                              help="robots stepped together")
+    bench_parser.add_argument("--workloads", nargs="+", choices=bench.WORKLOADS, default=list(bench.WORKLOADS),
+                              help="physics: physics alone; full: physics + controller + learner")
+    bench_parser.add_argument("--seconds", type=seconds, default=bench.Options.seconds,
+                              help="timed seconds per measurement, after a warm-up call")
+    bench_parser.add_argument("--budget-seconds", type=seconds, default=bench.Options.budget_seconds,
+                              help="stepping time a measurement may take (compilation apart); "
+                                   "cases projected past it are skipped")
+    bench_parser.add_argument("--control-steps", type=count, default=bench.Options.control_steps,
+                              help="control periods per timed call")
+    bench_parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    bench_parser.add_argument("--json", action="store_true",
+                              help="print the report as one JSON object, the last line of stdout")
+    bench_parser.set_defaults(handler=cmd_bench)
+    return parser

@@ -1,0 +1,85 @@
+"""The CPG walking controller for one robot: reflexes (eq 9), the CPG, leg targets, IK.
+
+``control_step`` maps the robot's observation and the propulsive feedback a_5 to servo
+targets and the CPG's next state.  It knows nothing of the engine that runs the robot.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from mjxcpg.control import cpg, ik
+from mjxcpg.physics.model import Layout, Observation
+from mjxcpg.robots.description import RobotDescription
+from mjxcpg.robots.qrio import QRIO
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerParams:
+    """Controller constants.  CPG amplitudes and reflex gains are the paper's; the defaults of
+    the robot-specific ones (time constants, A_x, A_z, Z_0) are QRIO's gait (``of``).
+
+    ``vsr_sign`` fixes the sign convention of theta_roll in eq (9), which the paper does not
+    print: +1 uses the right-handed roll about the forward axis (left side up is positive).
+    """
+
+    cpg: cpg.CPGParams = cpg.CPGParams()
+    amp_x: float = QRIO.gait.amp_x  # A_x (m), eqs 6-7
+    amp_z: float = QRIO.gait.amp_z  # A_z (m), eqs 4-5
+    x0: float = 0.0                 # X_0 (m): ankles under the hips
+    z0: float = QRIO.gait.z0        # Z_0 (m): hip-to-ankle leg length
+    h_er: float = 0.4               # extensor response gain, eq 9
+    h_vsr: float = 0.3              # vestibulo-spinal reflex gain, eq 9 (paper: 1.8; see docs)
+    vsr_sign: float = -1.0
+    control_dt: float = 0.008       # control period (s)
+    cpg_substeps: int = 8           # Euler steps of the CPG per control period
+    hand_gain: float = 1.0          # K of the hand-designed a_5 = K d(theta_roll)/dt
+
+    @classmethod
+    def of(cls, robot: RobotDescription, **overrides) -> "ControllerParams":
+        """The default controller with ``robot``'s gait constants (``RobotDescription.gait``)."""
+        gait = robot.gait
+        cpg_params = dataclasses.replace(cpg.CPGParams(), tau=gait.tau, tau_adapt=gait.tau_adapt)
+        return cls(**{"cpg": cpg_params, "amp_x": gait.amp_x, "amp_z": gait.amp_z, "z0": gait.z0, **overrides})
+
+
+def reflex_feedback(params: ControllerParams, layout: Layout, obs: Observation) -> jax.Array:
+    """Eq (9): a_1 = h_ER (f_z^r - f_z^l) / mg + h_VSR theta_roll."""
+    extensor_response = params.h_er * (obs.force_right - obs.force_left) / layout.weight
+    vestibulospinal_reflex = params.h_vsr * params.vsr_sign * obs.roll
+    return extensor_response + vestibulospinal_reflex
+
+
+def roll_rate_feedback(obs: Observation, gain: jax.Array) -> jax.Array:
+    """a_5 = gain d(theta_roll)/dt, the form of the hand-designed feedback with any gain."""
+    return gain * obs.gyro[0]
+
+
+def hand_feedback(params: ControllerParams, obs: Observation) -> jax.Array:
+    """The hand-designed propulsive feedback that starts every trial: a_5 = K d(theta_roll)/dt.
+
+    Roll rate is in phase with the lateral weight shift, so feeding it to the quad-element
+    oscillator pulls the swing leg forward while the body rolls onto the stance leg.
+    """
+    return roll_rate_feedback(obs, params.hand_gain)
+
+
+def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array) -> jax.Array:
+    """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,)."""
+    targets = cpg.leg_targets(q, params.x0, params.z0, params.amp_x, params.amp_z)
+    left = ik.leg_joint_angles(targets.left_x, targets.left_z, layout.geometry)
+    right = ik.leg_joint_angles(targets.right_x, targets.right_z, layout.geometry)
+    ctrl = jnp.asarray(layout.ctrl_home, dtype=left.dtype)
+    ctrl = ctrl.at[jnp.array(layout.left_leg_ctrl)].set(left)
+    return ctrl.at[jnp.array(layout.right_leg_ctrl)].set(right)
+
+
+def control_step(params: ControllerParams, layout: Layout, state: cpg.CPGState,
+                 obs: Observation, a5: jax.Array) -> tuple[cpg.CPGState, jax.Array]:
+    """One control period: reflexes and a_5 drive the CPG; its outputs become servo targets."""
+    feedback = cpg.feedback_vector(reflex_feedback(params, layout, obs), a5)
+    state = cpg.integrate(params.cpg, state, feedback, params.control_dt, params.cpg_substeps)
+    return state, joint_targets(params, layout, cpg.output(state))

@@ -1,0 +1,131 @@
+"""Walking without learning: run a controller on an engine and measure the gait."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, NamedTuple
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxcpg.control import cpg
+from mjxcpg.control.controller import ControllerParams, control_step
+from mjxcpg.jaxutil import xla
+from mjxcpg.physics.engines import Engine
+from mjxcpg.physics.model import Layout, Observation, observe
+
+FeedbackFn = Callable[[Observation, jax.Array], jax.Array]  # (obs, params) -> a5
+FALL_HEIGHT = 0.20        # pelvis height (m) below which the robot has fallen (walking: 0.28)
+FALL_UPRIGHTNESS = 0.5    # cos of 60 degrees of pelvis tilt
+
+
+def has_fallen(obs: Observation) -> jax.Array:
+    """A fall is the body on the ground: pelvis low or tilted, or the physics diverged."""
+    finite = jnp.isfinite(obs.height) & jnp.isfinite(obs.uprightness) & jnp.all(jnp.isfinite(obs.gyro))
+    return ~finite | (obs.height < FALL_HEIGHT) | (obs.uprightness < FALL_UPRIGHTNESS)
+
+
+class Trace(NamedTuple):
+    """Per control step, per robot."""
+
+    height: jax.Array
+    forward_position: jax.Array
+    force_left: jax.Array
+    force_right: jax.Array
+    roll: jax.Array
+    a5: jax.Array
+    fallen: jax.Array
+    qpos: jax.Array | None = None   # the full configuration, only from make_walk(record_qpos=True)
+
+
+def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: int,
+              feedback: FeedbackFn, record_qpos: bool = False) -> Callable:
+    """A jitted ``walk(physics, cpg_state, feedback_params) -> Trace`` over ``steps`` periods.
+
+    ``feedback(obs, feedback_params)`` returns a_5 for one robot; it is ``vmap``-ed.
+    ``record_qpos`` also keeps each period's full configuration (e.g. to render the gait).
+    """
+    def one_robot_control(cpg_state, sensors, fb_params):
+        obs = observe(layout, sensors)
+        a5 = feedback(obs, fb_params)
+        cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
+        return cpg_state, ctrl, obs, a5
+
+    def body(carry, _):
+        physics, cpg_state, fallen, fb_params = carry
+        sensors = engine.sensors(physics)
+        cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control)(cpg_state, sensors, fb_params)
+        fallen = fallen | jax.vmap(has_fallen)(obs)
+        physics = engine.step(physics, ctrl)
+        trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
+                      obs.roll, a5, fallen, sensors.qpos if record_qpos else None)
+        return (physics, cpg_state, fallen, fb_params), trace
+
+    @xla.jit
+    def walk(physics, cpg_state, fb_params):
+        batch = cpg_state.z.shape[0]
+        carry = (physics, cpg_state, jnp.zeros(batch, bool), fb_params)
+        _, trace = jax.lax.scan(body, carry, None, length=steps)
+        return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
+
+    return walk
+
+
+def walk_from_standing(sim, feedback: FeedbackFn, fb_params, seconds: float,
+                       record_qpos: bool = False) -> Trace:
+    """Robots on ``sim`` (a ``Simulation``), one per leading row of ``fb_params``, walk
+    ``seconds`` from the standing pose in one batch."""
+    chex.assert_equal_shape_prefix(jax.tree.leaves(fb_params), 1)  # one row per robot, in every leaf
+    batch = jax.tree.leaves(fb_params)[0].shape[0]
+    run = make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt), feedback,
+                    record_qpos)
+    return run(sim.engine.init(sim.qpos0, batch), initial_cpg(batch), fb_params)
+
+
+@dataclasses.dataclass
+class GaitSummary:
+    fell: bool
+    seconds: float
+    mean_vx: float
+    mean_pelvis_height: float
+    gait_period: float | None
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def summarise(trace: Trace, control_dt: float, settle_s: float = 2.0) -> list[GaitSummary]:
+    """Per robot: did it fall, simulated time before the fall, and, after ``settle_s`` and
+    before any fall, the mean forward speed, the mean pelvis height and the gait period
+    (a gait cycle is one period of the lateral sway: upward zero crossings of pelvis roll)."""
+    out = []
+    for k in range(trace.height.shape[0]):
+        fallen = np.asarray(trace.fallen[k])
+        n = int(np.argmax(fallen)) if fallen.any() else len(fallen)
+        start = min(int(settle_s / control_dt), max(n - 1, 0))
+        x = np.asarray(trace.forward_position[k])
+        h = np.asarray(trace.height[k])
+        span = (n - 1 - start) * control_dt
+        mean_vx = float((x[n - 1] - x[start]) / span) if span > 0 else 0.0
+        period = sway_period(np.asarray(trace.roll[k])[start:n], control_dt)
+        out.append(GaitSummary(
+            fell=bool(fallen.any()), seconds=n * control_dt, mean_vx=mean_vx,
+            mean_pelvis_height=float(np.mean(h[start:n])) if n > start else float("nan"),
+            gait_period=period))
+    return out
+
+
+def sway_period(roll: np.ndarray, dt: float) -> float | None:
+    """Mean interval between upward zero crossings of the mean-removed roll, or None."""
+    if len(roll) < 3 or not np.all(np.isfinite(roll)):
+        return None
+    sway = roll - roll.mean()
+    crossings = np.flatnonzero((sway[:-1] < 0) & (sway[1:] >= 0))
+    return float(np.mean(np.diff(crossings)) * dt) if len(crossings) > 2 else None
+
+
+def initial_cpg(batch: int) -> cpg.CPGState:
+    state = cpg.init_state()
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)

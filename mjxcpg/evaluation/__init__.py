@@ -1,0 +1,3 @@
+"""Evaluation of learned policies: the paper's protocols (``protocol``, ``rollout``,
+``evaluate``), the transfer to the other engine and to the hardware robot (``transfer``), the
+evaluation report and plots (``report``, ``plots``) and rendering (``render``)."""

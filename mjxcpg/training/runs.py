@@ -1,0 +1,270 @@
+"""Run directories: config, orbax checkpoints every chunk, resume, results, a lock.
+
+``DIR/config.json`` (the run spec, the engine, and the code that made the run: see
+``mjxcpg.training.provenance``), ``DIR/checkpoints/`` (``mjxcpg.training.checkpoints``: orbax, the
+full state: physics, CPG, learner weights, traces, RNG keys, bookkeeping, with the config's
+sha256 and a sha256 of it all),
+``DIR/summary.json`` (written last: a run directory that holds it is finished), ``DIR/.lock``.
+A run resumed from a checkpoint ends exactly as an uninterrupted one: chunk boundaries and
+every random draw are functions of the config and seeds alone.
+
+What can go wrong, and what then happens:
+
+* a kill at any moment: orbax writes a checkpoint under a temporary name and renames it
+  when it is complete, so the checkpoints on disk are whole; ``--resume`` goes on from the
+  newest;
+* a checkpoint damaged on disk (torn, corrupted): orbax cannot read it or its leaves do not
+  match their sha256; a resume goes on from the newest intact one, says so, and moves the
+  damaged ones to ``DIR/damaged_checkpoints/``; with none intact, an error, nothing moved;
+* a failed write (a full disk): an error; the checkpoints written before it stay;
+* a second process on the same directory: refused by the lock;
+* other code than the run's: refused, unless allowed, and then recorded in config.json.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import shutil
+import socket
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+from mjxcpg.control.sim import Simulation, make_simulation
+from mjxcpg.training import config, events, provenance, train
+from mjxcpg.training.checkpoints import (RunError, damage_text, manager_of, restore_state, save_next, set_aside,
+                                         written)
+from mjxcpg.training.files import write_text_atomic
+from mjxcpg.training.progress import RunProgress
+
+LOCK_NAME = ".lock"
+
+
+def notice(text: str) -> None:
+    """One line to the user, beside the progress bar."""
+    print(f"mjxcpg: {text}", file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------- the lock
+
+def _lock_owner(handle) -> dict:
+    """Who the lock file names: {} when it names nobody."""
+    handle.seek(0)
+    text = handle.read()
+    try:
+        return json.loads(text) if text.strip() else {}
+    except json.JSONDecodeError:
+        return {"pid": "unknown", "host": "unknown"}
+
+
+def _owner_text(owner: dict) -> str:
+    return f"pid {owner.get('pid')} on {owner.get('host')}"
+
+
+@contextlib.contextmanager
+def locked(out: Path) -> Iterator[None]:
+    """Hold the run directory ``out`` (made if missing) for the block, or refuse at once.
+
+    The lock is an ``flock`` of ``out/.lock``, and the file names the holder (pid, host).
+    The kernel releases an flock when its holder dies, however it dies: a lock that is free
+    but still names a holder was left by a dead process, and is taken over with a notice.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / LOCK_NAME, "a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise RunError(f"{out} is in use by {_owner_text(_lock_owner(handle))}; "
+                           "wait for it to end or use another --out") from None
+        previous = _lock_owner(handle)
+        if previous:
+            notice(f"{out}: took over the lock of {_owner_text(previous)}, which is no longer running")
+        handle.seek(0)
+        handle.truncate()
+        handle.write(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
+        handle.flush()
+        try:
+            yield
+        finally:
+            handle.truncate(0)
+            handle.flush()
+
+
+# ---------------------------------------------------------------- the directory
+
+def run_files(out: Path) -> list[Path]:
+    """What ``out`` holds besides its lock."""
+    return [p for p in out.iterdir() if p.name != LOCK_NAME] if out.is_dir() else []
+
+
+def remove_run_files(out: Path) -> None:
+    """Empty ``out`` for a new run (``--force``), keeping the lock its caller holds."""
+    for path in run_files(out):
+        shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+
+
+def is_finished(out: Path) -> bool:
+    return (out / "summary.json").is_file()
+
+
+# ---------------------------------------------------------------- running
+
+def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, force: bool,
+            allow_other_code: bool = False) -> tuple:
+    """Check the directory, build the simulation and the starting state (fresh or resumed).
+    The caller holds ``locked(out)``."""
+    config_path = out / "config.json"
+    code = provenance.code_identity()
+    record = {"spec": config.spec_to_dict(spec), "engine": engine, "code": code}
+    fresh = True
+    if run_files(out):
+        if resume and config_path.is_file():
+            saved, record = read_config(out)
+            if saved != spec:
+                raise RunError(f"{out} holds a run of another config; use a new --out")
+            if is_finished(out):
+                raise RunError(f"{out} holds a finished run (summary.json); its results stay as they are")
+            differences = provenance.differences(record.get("code"), code)
+            if differences and not allow_other_code:
+                raise RunError(f"{out} was made by other code ({'; '.join(differences)}); "
+                               "pass --allow-other-code to resume it with this code")
+            if differences:
+                record["resumed_with_other_code"] = record.get("resumed_with_other_code", []) + [
+                    {"code": code, "differences": differences}]
+                write_text_atomic(config_path, json.dumps(record, indent=1))
+            engine = engine or record["engine"]
+            fresh = False
+        elif force:
+            remove_run_files(out)
+        elif resume:
+            raise RunError(f"{out} is not a run directory (no config.json); nothing to resume")
+        else:
+            raise RunError(f"{out} exists; pass --resume to continue it or --force to replace it")
+    sim = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
+    task = train.make_task(sim, spec)
+    state = train.init_run(sim, task, spec)
+    out.mkdir(parents=True, exist_ok=True)
+    if fresh:
+        # Before any checkpoint: a directory with checkpoints always says what made them.
+        write_text_atomic(config_path, json.dumps(record | {"engine": sim.engine.name}, indent=1))
+    manager = manager_of(out, writer=True)
+    if manager.all_steps():
+        state, step, damaged = restore_state(manager, state, spec)
+        if damaged:
+            aside = set_aside(out, [d for d, _ in damaged])
+            notice(f"{out}: {damage_text(step, damaged)}; the damaged ones are moved to {aside}")
+            manager.reload()
+    return sim, task, state, manager
+
+
+def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
+            force: bool = False, progress: bool = True,
+            tensorboard: bool = True, allow_other_code: bool = False,
+            ) -> tuple[Simulation, train.Task, train.RunState, float]:
+    """Run (or resume) to the end, checkpointing after every chunk, with a progress line
+    (``progress``) and TensorBoard event files (``tensorboard``, ``mjxcpg.training.events``).
+    The caller holds ``locked(out)``.
+
+    Returns the simulation, task, final state and the wall time of this session."""
+    sim, task, state, manager = prepare(out, spec, engine, resume, force, allow_other_code)
+    start = time.perf_counter()
+    try:
+        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard)
+    finally:
+        written(out, manager.wait_until_finished)
+    return sim, task, state, time.perf_counter() - start
+
+
+def learn_to_end(out: Path, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
+                 checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool) -> train.RunState:
+    """Chunks until every learner is done; after each, a checkpoint (unless ``checkpoints`` is
+    None), the progress line and the event files of ``out``."""
+    run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
+    book = jax.device_get(state.learners.book)
+    done = train.done_mask(task, state.learners)
+    line = RunProgress(spec.trial, task.dt, sim.engine.substeps, spec.k_s, done, int(np.sum(book.trial)), progress)
+    if run_events is not None:  # a resumed checkpoint may hold trials that a kill kept from the events
+        run_events.write_trials(book, done)
+
+    def on_chunk(new_state: train.RunState, counts: dict) -> None:
+        if checkpoints is not None:
+            written(out, lambda: save_next(checkpoints, new_state, spec))
+        book = jax.device_get(new_state.learners.book)
+        done = train.done_mask(task, new_state.learners)
+        measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
+                               counts["robot_steps_per_s"])
+        if run_events is not None:
+            run_events.write_trials(book, done)
+            run_events.write_progress(measures["trials"], {k: v for k, v in measures.items()
+                                                           if k != "trials" and v is not None})
+
+    try:
+        return train.run_until_done(sim, task, spec, state, on_chunk)
+    finally:
+        line.close()
+        if run_events is not None:
+            run_events.close()
+
+
+def check_learners(spec: train.RunSpec, learners) -> list[int]:
+    """``learners`` as indices into ``spec``'s batch (all of them when None), each in range."""
+    chosen = list(range(spec.batch)) if learners is None else [int(k) for k in learners]
+    for k in chosen:
+        if not 0 <= k < spec.batch:
+            raise RunError(f"learner {k} is out of range: the run has {spec.batch} learner(s)")
+    return chosen
+
+
+def read_config(out: Path) -> tuple[train.RunSpec, dict]:
+    """The spec of the run in ``out`` and its whole config.json record."""
+    config_path = out / "config.json"
+    if not out.is_dir():
+        raise RunError(f"no run directory at {out}")
+    if not config_path.is_file():
+        raise RunError(f"{out} has no config.json; not a run directory")
+    try:
+        record = json.loads(config_path.read_text())
+        return config.spec_from_dict(record["spec"]), record
+    except (json.JSONDecodeError, KeyError, TypeError) as error:
+        raise RunError(f"{config_path} is damaged: {error}") from None
+
+
+class LoadedRun(NamedTuple):
+    spec: train.RunSpec
+    sim: Simulation
+    task: train.Task
+    state: train.RunState  # the latest checkpoint's
+
+
+def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot: str = "nominal") -> LoadedRun:
+    """The spec, simulation, task and final state of a finished or interrupted run.
+
+    On ``robot="hardware"`` (see ``mjxcpg.physics.hardware``) the learners are the checkpoint's and the
+    physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
+    """
+    out = Path(out)
+    spec, record = read_config(out)
+    manager = manager_of(out)
+    if not manager.all_steps():
+        raise RunError(f"{out} has no checkpoint")
+    sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
+                          physics_dt=spec.physics_dt, robot=robot)
+    task = train.make_task(sim, spec)
+    # The checkpoint holds the physics in the recorded engine's layout.
+    recorded = sim if sim.engine.name == record["engine"] and robot == "nominal" else make_simulation(
+        record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
+    state, step, damaged = restore_state(manager, train.init_run(recorded, task, spec), spec)
+    if damaged:
+        notice(f"{out}: {damage_text(step, damaged)}")
+    if robot != "nominal":
+        state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
+    return LoadedRun(spec, sim, task, state)

@@ -1,0 +1,196 @@
+"""Many learners in lockstep: ``vmap`` over learners, ``lax.scan`` over control steps,
+a thin Python loop over chunks for progress and checkpoints (after PureJaxRL's layout)."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from typing import Any, Callable, NamedTuple
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxcpg.control.controller import ControllerParams
+from mjxcpg.jaxutil import xla
+from mjxcpg.learning import actor_critic as ac
+from mjxcpg.learning import ngnet
+from mjxcpg.learning.learner import (LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step,
+                            period_draws)
+from mjxcpg.control.sim import Simulation
+
+
+class RunState(NamedTuple):
+    physics: Any          # the engine's batched state
+    learners: LearnerState  # batched over learners
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """What a run is: one learner per (k_s, seed) pair."""
+
+    k_s: tuple[float, ...]
+    seeds: tuple[int, ...]
+    learner: ac.LearnerParams = ac.LearnerParams()
+    trial: TrialParams = TrialParams()
+    controller: ControllerParams = ControllerParams()
+    physics_dt: float | None = None
+    basis_grid: int = 15
+    basis_width: float = 1.0
+    chunk_seconds: float = 20.0
+
+    @property
+    def batch(self) -> int:
+        return len(self.k_s)
+
+
+def make_task(sim: Simulation, spec: RunSpec) -> Task:
+    return Task(layout=sim.layout, controller=spec.controller, learner=spec.learner,
+                trial=spec.trial, basis=ngnet.make_basis(spec.basis_grid, width_scale=spec.basis_width))
+
+
+def init_run(sim: Simulation, task: Task, spec: RunSpec) -> RunState:
+    learners = [init_learner(task, k, s) for k, s in zip(spec.k_s, spec.seeds)]
+    return RunState(physics=sim.engine.init(sim.qpos0, spec.batch),
+                    learners=jax.tree.map(lambda *xs: jnp.stack(xs), *learners))
+
+
+class Transition(NamedTuple):
+    """What a chunk asked its engine in one control period (``make_chunk(record=True)``)."""
+
+    physics: Any       # the batched engine state stepped, after the period's resets
+    ctrl: jax.Array    # (batch, nu) servo targets
+    active: jax.Array  # (batch,) robots stepped
+
+
+def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) -> Callable:
+    """A jitted ``chunk(run, initial) -> run`` advancing every learner by ``steps`` control
+    periods; with ``record``, ``-> (run, transitions)``, a ``Transition`` per period stacked
+    on a leading axis (the benchmarks replay them as physics alone)."""
+    engine = sim.engine
+    home = home_ctrl(task)
+    step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None, 0))
+    learners_done = jax.vmap(functools.partial(is_done, task))
+    # (steps, batch) draws: every period's random numbers, drawn before the loop
+    chunk_draws = jax.vmap(jax.vmap(period_draws), in_axes=(None, 0))
+
+    def body(carry: tuple[RunState, Any], draws):
+        run, initial = carry
+        learners, ctrl, ended = step_learners(run.learners, engine.sensors(run.physics), home, draws)
+        physics = engine.reset(run.physics, initial, ended)
+        active = ~learners_done(learners)  # a finished learner's robot stands still: the C engines skip it
+        stepped = RunState(engine.step(physics, ctrl, active), learners)
+        return (stepped, initial), Transition(physics, ctrl, active) if record else None
+
+    @xla.jit
+    def chunk(run: RunState, initial: Any):
+        periods = run.learners.period + jnp.arange(steps)[:, None]
+        draws = chunk_draws(run.learners.key, periods)
+        (run, _), transitions = jax.lax.scan(body, (run, initial), draws)
+        return (run, transitions) if record else run
+
+    return chunk
+
+
+def learner_sharding(batch: int) -> jax.sharding.NamedSharding:
+    """The learner axis split over as many of JAX's devices as divide the batch evenly.
+
+    Each device keeps at least two learners: XLA compiles a batch of one differently (its
+    degenerate axis is dropped), which would change results in the last bit.
+    """
+    devices = jax.devices()
+    count = max(n for n in range(1, len(devices) + 1)
+                if batch % n == 0 and (n == 1 or batch // n >= 2))
+    mesh = jax.sharding.Mesh(np.array(devices[:count]), ("learners",))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("learners"))
+
+
+def shard_learners(tree: Any, batch: int) -> Any:
+    """Place every leaf (leading axis = learners) across the devices; a no-op on one device."""
+    chex.assert_tree_shape_prefix(tree, (batch,))  # a leaf without the learner axis would be split wrongly
+    return jax.device_put(tree, learner_sharding(batch))
+
+
+def done_mask(task: Task, learners: LearnerState) -> np.ndarray:
+    """Which learners have succeeded or used their budget, on the host (only the
+    bookkeeping, which is all ``is_done`` reads, leaves the devices)."""
+    return np.asarray(is_done(task, learners._replace(book=jax.device_get(learners.book))))
+
+
+def progress_counts(task: Task, learners: LearnerState) -> dict:
+    book = jax.device_get(learners.book)
+    return {
+        "trials": int(np.sum(book.trial)),
+        "succeeded": int(np.sum(book.trials_to_success >= 0)),
+        "done": int(np.sum(done_mask(task, learners))),
+    }
+
+
+def compacted_rows(done: np.ndarray) -> np.ndarray | None:
+    """The learners a chunk runs once many have finished: the unfinished ones, padded with
+    finished ones to a power of two (at least 2), or None for the whole batch.
+
+    A finished learner is frozen, so leaving it out changes nothing but the cost: the
+    controller and learner run for fewer robots.  Sizes come from a short ladder (each is
+    compiled once), and a batch never shrinks to one, which XLA compiles differently.
+    """
+    batch, active = len(done), int(np.sum(~done))
+    size = max(2, 1 << max(active - 1, 0).bit_length())
+    if size > batch // 2:
+        return None
+    return np.sort(np.concatenate([np.flatnonzero(~done), np.flatnonzero(done)[:size - active]]))
+
+
+def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
+    """Per learner: k_s, seed, success, trials to success, and per trial: the return, whether
+    it fell, and after the hand-over the mean forward velocity, the mean |a_5| and the
+    policy's sigma at the trial's end."""
+    book = jax.device_get(learners.book)
+    out = []
+    for i in range(spec.batch):
+        n = int(book.trial[i])
+        tts = int(book.trials_to_success[i])
+        out.append({
+            "k_s": spec.k_s[i], "seed": spec.seeds[i], "succeeded": tts >= 0,
+            "trials_to_success": tts if tts >= 0 else None, "trials": n,
+            "returns": [float(x) for x in book.returns[i][:n]],
+            "falls": [bool(x) for x in book.falls[i][:n]],
+            "velocities": [float(x) for x in book.velocities[i][:n]],
+            "mean_abs_a5": [float(x) for x in book.mean_abs_a5[i][:n]],
+            "sigmas": [float(x) for x in book.sigmas[i][:n]],
+        })
+    return out
+
+
+def _put_rows(rows: np.ndarray, whole: jax.Array, part: jax.Array) -> np.ndarray:
+    whole = np.array(whole)  # on the host: ``part`` may live on fewer devices than ``whole``
+    whole[rows] = np.asarray(part)
+    return whole
+
+
+def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
+                   on_chunk: Callable[[RunState, dict], None] | None = None,
+                   chunk_fn: Callable | None = None) -> RunState:
+    """Python loop over jitted chunks until every learner has succeeded or used its budget."""
+    steps = round(spec.chunk_seconds / task.dt)
+    chunk = chunk_fn or make_chunk(sim, task, steps)
+    initial = sim.engine.init(sim.qpos0, spec.batch)
+    done = done_mask(task, state.learners)
+    while not done.all():
+        start = time.perf_counter()
+        rows = compacted_rows(done)
+        if rows is None:
+            state = chunk(shard_learners(state, spec.batch), shard_learners(initial, spec.batch))
+        else:
+            take = functools.partial(jax.tree.map, lambda x: x[rows])
+            part = chunk(shard_learners(take(state), len(rows)), shard_learners(take(initial), len(rows)))
+            state = jax.tree.map(functools.partial(_put_rows, rows), state, part)
+        state = jax.block_until_ready(state)
+        robot_steps_per_s = np.sum(~done) * steps * sim.engine.substeps / (time.perf_counter() - start)
+        counts = progress_counts(task, state.learners) | {"robot_steps_per_s": robot_steps_per_s}
+        done = done_mask(task, state.learners)
+        if on_chunk is not None:
+            on_chunk(state, counts)
+    return state

@@ -1,0 +1,50 @@
+"""Configs that generate their learners (k_s_values, seeds_per_k_s, first_seed, learners)."""
+
+from pathlib import Path
+
+import pytest
+
+from mjxcpg.training import config
+
+# The shipped configs as they were written before they could generate their learners: every
+# k_s and every seed spelled out.
+SPELLED_OUT = Path(__file__).parent / "data" / "spelled_out"
+
+
+@pytest.mark.parametrize("name", ["stats", "wide"])
+def test_generated_learners_equal_the_lists_spelled_out(name):
+    assert config.load_spec(name) == config.load_spec(str(SPELLED_OUT / f"{name}.toml"))
+
+
+def test_stats_is_ten_seeds_per_k_s_from_seed_100():
+    spec = config.load_spec("stats")
+    assert spec.k_s[:11] == (0.0,) * 10 + (1.0,)
+    assert spec.seeds == tuple(range(100, 170))
+
+
+def test_expansion_repeats_each_value_then_cycles_to_the_count():
+    data = config.expand_learners({"k_s_values": [1.0, 2.0], "seeds_per_k_s": 2, "first_seed": 5,
+                                   "learners": 6, "chunk_seconds": 4.0})
+    assert data == {"k_s": [1.0, 1.0, 2.0, 2.0, 1.0, 1.0], "seeds": [5, 6, 7, 8, 9, 10], "chunk_seconds": 4.0}
+
+
+def test_spelled_out_learners_pass_through():
+    data = {"k_s": [1.0], "seeds": [3]}
+    assert config.expand_learners(data) is data
+
+
+@pytest.mark.parametrize("text, key", [
+    ("k_s_values = [1.0]\nk_s = [1.0]\n", "k_s"),
+    ("k_s_values = [1.0]\nseeds = [1]\n", "seeds"),
+    ("seeds_per_k_s = 3\n", "seeds_per_k_s"),
+    ("k_s_values = []\n", "k_s_values"),
+    ("k_s_values = ['fast']\n", r"k_s_values\[0\]"),
+    ("k_s_values = [1.0]\nseeds_per_k_s = 0\n", "seeds_per_k_s"),
+    ("k_s_values = [1.0]\nfirst_seed = -1\n", "first_seed"),
+    ("k_s_values = [1.0]\nlearners = 2.5\n", "learners"),
+])
+def test_bad_generator_names_the_key(tmp_path, text, key):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=f"^{key}"):
+        config.load_spec(str(path))
