@@ -110,3 +110,17 @@ def test_learn_resumed_when_finished_keeps_its_record(tmp_path, capsys):
     assert (out / "learn.json").is_file() and (out / "policy_map.png").is_file()
     assert main(argv + ["--resume"]) == 0
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"} == before
+
+
+def test_the_parser_offers_what_the_library_has():
+    """The parser lists some choices itself, so that ``mjxcpg --help`` imports no JAX: they
+    must be the library's."""
+    import mjxcpg
+    from mjxcpg import api
+    from mjxcpg.training import controls
+
+    actions = {(a.dest, tuple(a.choices)) for p in build_parser()._subparsers._group_actions[0].choices.values()
+               for a in p._actions if a.choices}
+    assert ("only", tuple(controls.CONTROLS)) in actions
+    assert ("skip", tuple(api.EVALUATIONS)) in actions
+    assert set(mjxcpg.__all__) - {"__version__"} == set(api.__all__)

@@ -245,6 +245,14 @@ def test_online_learning_bad_input_is_one_line(argv, message, capsys, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_online_learning_never_replaces_its_source(finished_quick, capsys):
+    before = {p: p.read_bytes() for p in finished_quick.rglob("*") if p.is_file() and p.name != ".lock"}
+    argv = ["learn", "--from", str(finished_quick), "--out", str(finished_quick), "--force", "--trials", "1"]
+    assert main(argv) == 2
+    assert "is the run learned from" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in finished_quick.rglob("*") if p.is_file() and p.name != ".lock"} == before
+
+
 # ---------------------------------------------------------------- transfer and online learning (slow)
 
 @pytest.fixture(scope="module")

@@ -180,7 +180,10 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     try:
         state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard)
     finally:
-        written(out, manager.wait_until_finished)
+        try:
+            written(out, manager.wait_until_finished)
+        finally:
+            manager.close()  # its writer threads, which a long-lived process would keep
     return sim, task, state, time.perf_counter() - start
 
 
@@ -253,16 +256,16 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     """
     out = Path(out)
     spec, record = read_config(out)
-    manager = manager_of(out)
-    if not manager.all_steps():
-        raise RunError(f"{out} has no checkpoint")
     sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
                           physics_dt=spec.physics_dt, robot=robot)
     task = train.make_task(sim, spec)
     # The checkpoint holds the physics in the recorded engine's layout.
     recorded = sim if sim.engine.name == record["engine"] and robot == "nominal" else make_simulation(
         record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
-    state, step, damaged = restore_state(manager, train.init_run(recorded, task, spec), spec)
+    with contextlib.closing(manager_of(out)) as manager:
+        if not manager.all_steps():
+            raise RunError(f"{out} has no checkpoint")
+        state, step, damaged = restore_state(manager, train.init_run(recorded, task, spec), spec)
     if damaged:
         notice(f"{out}: {damage_text(step, damaged)}")
     if robot != "nominal":
