@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import pytest
 
 from mjxcpg.control import walk
+from mjxcpg.control.controller import hand_feedback
 
 HAND, STEPPING = 0, 1
 
@@ -31,3 +32,20 @@ def test_stepping_in_place(mujoco_sim):
     gait = walk.summarise(run(mujoco_sim.engine.init(mujoco_sim.qpos0, 1), walk.initial_cpg(1),
                               jnp.zeros(1)), params.control_dt)[0]
     assert not gait.fell and abs(gait.mean_vx) < 0.01
+
+
+def test_hand_designed_start_is_the_hand_feedback_then_the_given_one(mujoco_sim):
+    """Two robots, 1 s each: hand-designed for all of it (through ``hand_seconds``) equals the
+    hand-designed feedback given outright, and a start of 0.5 s then a_5 = 0 parts from it
+    only after 0.5 s."""
+    def zero(obs, k):
+        return 0.0 * k
+
+    start = walk.walk_from_standing(mujoco_sim, zero, jnp.zeros(1), 1.0, hand_seconds=1.0)
+    outright = walk.walk_from_standing(mujoco_sim, lambda obs, k: hand_feedback(mujoco_sim.params, obs) + 0.0 * k,
+                                       jnp.zeros(1), 1.0)
+    assert jnp.array_equal(start.a5, outright.a5) and jnp.array_equal(start.height, outright.height)
+    half = walk.walk_from_standing(mujoco_sim, zero, jnp.zeros(1), 1.0, hand_seconds=0.5)
+    n = round(0.5 / mujoco_sim.control_dt)
+    assert jnp.array_equal(half.a5[:, :n], outright.a5[:, :n])
+    assert jnp.all(half.a5[:, n:] == 0.0)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import cpg
-from mjxcpg.control.controller import ControllerParams, control_step
+from mjxcpg.control.controller import ControllerParams, control_step, hand_feedback
 from mjxcpg.jaxutil import xla
 from mjxcpg.physics.engines import Engine
 from mjxcpg.physics.model import Layout, Observation, observe
@@ -41,22 +41,27 @@ class Trace(NamedTuple):
 
 
 def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: int,
-              feedback: FeedbackFn, record_qpos: bool = False) -> Callable:
+              feedback: FeedbackFn, record_qpos: bool = False, hand_steps: int = 0) -> Callable:
     """A jitted ``walk(physics, cpg_state, feedback_params) -> Trace`` over ``steps`` periods.
 
     ``feedback(obs, feedback_params)`` returns a_5 for one robot; it is ``vmap``-ed.
     ``record_qpos`` also keeps each period's full configuration (e.g. to render the gait).
+    ``hand_steps`` > 0: the hand-designed feedback acts for the first ``hand_steps`` periods,
+    as at the start of a learning trial, and ``feedback`` from then on.
     """
-    def one_robot_control(cpg_state, sensors, fb_params):
+    def one_robot_control(cpg_state, sensors, fb_params, step):
         obs = observe(layout, sensors)
         a5 = feedback(obs, fb_params)
+        if hand_steps:
+            a5 = jnp.where(step < hand_steps, hand_feedback(params, obs), a5)
         cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
         return cpg_state, ctrl, obs, a5
 
-    def body(carry, _):
+    def body(carry, step):
         physics, cpg_state, fallen, fb_params = carry
         sensors = engine.sensors(physics)
-        cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control)(cpg_state, sensors, fb_params)
+        cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control, (0, 0, 0, None))(cpg_state, sensors, fb_params,
+                                                                                 step)
         fallen = fallen | jax.vmap(has_fallen)(obs)
         physics = engine.step(physics, ctrl)
         trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
@@ -67,20 +72,21 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
     def walk(physics, cpg_state, fb_params):
         batch = cpg_state.z.shape[0]
         carry = (physics, cpg_state, jnp.zeros(batch, bool), fb_params)
-        _, trace = jax.lax.scan(body, carry, None, length=steps)
+        _, trace = jax.lax.scan(body, carry, jnp.arange(steps))
         return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
 
     return walk
 
 
 def walk_from_standing(sim, feedback: FeedbackFn, fb_params, seconds: float,
-                       record_qpos: bool = False) -> Trace:
+                       record_qpos: bool = False, hand_seconds: float = 0.0) -> Trace:
     """Robots on ``sim`` (a ``Simulation``), one per leading row of ``fb_params``, walk
-    ``seconds`` from the standing pose in one batch."""
+    ``seconds`` from the standing pose in one batch; with ``hand_seconds`` > 0, the
+    hand-designed feedback acts first for that long, as at a learning trial's start."""
     chex.assert_equal_shape_prefix(jax.tree.leaves(fb_params), 1)  # one row per robot, in every leaf
     batch = jax.tree.leaves(fb_params)[0].shape[0]
     run = make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt), feedback,
-                    record_qpos)
+                    record_qpos, round(hand_seconds / sim.control_dt))
     return run(sim.engine.init(sim.qpos0, batch), initial_cpg(batch), fb_params)
 
 

@@ -1,0 +1,55 @@
+"""Each final policy's 20 s velocity, from standing and after the learning trials' start.
+
+A learning trial starts with the hand-designed feedback (1-3 s) and hands over to the
+policy; the run's summary walks each final policy (its mean, no noise) from standing
+instead. This walks every learner's final policy both ways, 20 s on the run's engine:
+``from standing`` and ``after 2 s of the hand-designed feedback`` (the middle of the
+trials' hand-over window), and prints per k_s the mean velocity with its 95% bootstrap
+interval, the walks that fell, Spearman's rho between k_s and the per-k_s means and the
+least-squares slope of velocity on k_s with its interval (a fallen walk counts with its
+mean velocity up to the fall, as in the run's summary).
+
+    NPROC=1 .venv/bin/python bench/protocol_velocity.py runs/stats [--learners 10 11 ...]
+"""
+
+import argparse
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxcpg.control import walk
+from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.training import runs, stats
+
+HAND_SECONDS = 2.0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--learners", type=int, nargs="+", default=None, help="default: all")
+    args = parser.parse_args()
+    spec, sim, task, state = runs.load_run(args.run)
+    chosen = args.learners if args.learners is not None else list(range(spec.batch))
+    weights = jax.tree.map(lambda w: w[jnp.asarray(chosen)], state.learners.weights)
+    k_s = np.array([spec.k_s[i] for i in chosen])
+    for label, hand_seconds in (("from standing", 0.0), (f"after {HAND_SECONDS:g} s of the hand-designed feedback",
+                                                          HAND_SECONDS)):
+        trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, 20.0, hand_seconds=hand_seconds)
+        gaits = walk.summarise(trace, sim.control_dt)
+        v = np.array([g.mean_vx for g in gaits])
+        fell = np.array([g.fell for g in gaits])
+        groups = sorted(set(k_s))
+        means = {k: stats.mean_interval(v[k_s == k]) for k in groups}
+        print(f"\n{label}\n\n| k_s | learners | fell | 20 s velocity (m/s) |\n|---|---|---|---|")
+        for k in groups:
+            print(f"| {k:g} | {int(np.sum(k_s == k))} | {int(np.sum(fell[k_s == k]))} | {means[k].format('.3f')} |")
+        if len(groups) > 1:
+            rho = stats.spearman(groups, [means[k].value for k in groups])
+            print(f"\nSpearman rho {rho:.2f}; slope {stats.slope_interval(k_s, v).format('.4f')} m/s per unit k_s")
+
+
+if __name__ == "__main__":
+    main()
