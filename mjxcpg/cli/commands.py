@@ -164,7 +164,7 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     from mjxcpg import api
 
     overrides = {name: getattr(args, name) for name in (
-        "seed", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
+        "seed", "hand_seconds", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
         if getattr(args, name) is not None}
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
     return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,

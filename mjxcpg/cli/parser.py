@@ -133,6 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
     evaluation.add_argument("--seed", type=_number(checks.SEED), default=None, help="evaluation seed (default 0)")
+    evaluation.add_argument("--hand-seconds", type=_number(checks.NON_NEGATIVE), default=None,
+                            help="hand-designed feedback first for this long, as at a learning trial's start "
+                                 "(default 0: each policy from standing)")
     evaluation.add_argument("--fixed-point-steps", type=non_negative_count, default=None,
                             help="unperturbed gait cycles for velocity and fixed point (default 100)")
     evaluation.add_argument("--perturbations", type=non_negative_count, default=None,

@@ -19,6 +19,7 @@ class EvalParams:
 
     seed: int = 0
     settle_seconds: float = 4.0         # walking from standing settles within a few cycles
+    hand_seconds: float = 0.0           # the hand-designed feedback first, as at a learning trial's start
     # touchdown detection on the left sole's vertical force, in units of body weight m g
     touchdown_force: float = 0.25       # a touchdown is the force rising past this ...
     liftoff_force: float = 0.05         # ... after the sole was unloaded (below this) ...
@@ -64,6 +65,7 @@ class Protocol:
     touchdown_force: float              # newtons
     liftoff_force: float
     min_airborne_steps: int
+    hand_steps: int = 0                 # periods of hand-designed feedback before the policy acts
     fixed_point_steps: int = 0
     perturbations: int = 0
     amplitude: float = 0.0
@@ -82,7 +84,8 @@ def make_protocol(mode: str, params: EvalParams, layout: Layout, dt: float) -> P
     common = dict(settle_steps=steps(params.settle_seconds),
                   touchdown_force=params.touchdown_force * layout.weight,
                   liftoff_force=params.liftoff_force * layout.weight,
-                  min_airborne_steps=steps(params.min_airborne_seconds))
+                  min_airborne_steps=steps(params.min_airborne_seconds),
+                  hand_steps=round(params.hand_seconds / dt))
     if mode == "steady":
         seconds = params.slope_seconds
         return Protocol(mode, steps(seconds), capacity=math.ceil(seconds / 0.2), **common)
