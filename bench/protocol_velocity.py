@@ -7,7 +7,8 @@ instead. This walks every learner's final policy both ways, 20 s on the run's en
 trials' hand-over window), and prints per k_s the mean velocity with its 95% bootstrap
 interval, the walks that fell, Spearman's rho between k_s and the per-k_s means and the
 least-squares slope of velocity on k_s with its interval (a fallen walk counts with its
-mean velocity up to the fall, as in the run's summary).
+mean velocity up to the fall, as in the run's summary), and the a_5 = 0 gait's velocity in
+the same walk.
 
     NPROC=1 .venv/bin/python bench/protocol_velocity.py runs/stats [--learners 10 11 ...]
 """
@@ -49,6 +50,9 @@ def main() -> None:
         if len(groups) > 1:
             rho = stats.spearman(groups, [means[k].value for k in groups])
             print(f"\nSpearman rho {rho:.2f}; slope {stats.slope_interval(k_s, v).format('.4f')} m/s per unit k_s")
+        zero = walk.summarise(walk.walk_from_standing(sim, lambda obs, k: 0.0 * k, jnp.zeros(1), 20.0,
+                                                     hand_seconds=hand_seconds), sim.control_dt)[0]
+        print(f"a_5 = 0 (control c), the same walk: {zero.mean_vx:.3f} m/s" + (", fell" if zero.fell else ""))
 
 
 if __name__ == "__main__":
