@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Callable, Iterable
 
-from mjxcpg.evaluation import evaluate, transfer
+from mjxcpg.evaluation import registry
 from mjxcpg.evaluation import report as evaluation_report
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.training import report as run_report
@@ -18,7 +18,7 @@ from mjxcpg.training.train import RunSpec
 
 __all__ = ["RunSpec", "EvalParams", "load_spec", "sweep", "load_run", "evaluate_policies", "EVALUATIONS"]
 
-EVALUATIONS = ("return_map", "slopes", "pushes", "transfer")  # transfer: on the hardware robot only
+EVALUATIONS = registry.NAMES  # in run order; transfer: on the hardware robot only
 
 
 def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = None, resume: bool = False,
@@ -66,22 +66,14 @@ def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None
     directory; on the hardware robot its ``hardware/`` subdirectory).
 
     Returns the report's summary and where the report is."""
-    run_dir = Path(run_dir)
+    run_dir, parts = Path(run_dir), list(parts)
     unknown = set(parts) - set(EVALUATIONS)
     if unknown:
         raise ValueError(f"unknown evaluation(s) {', '.join(sorted(unknown))}; choose from {', '.join(EVALUATIONS)}")
-    spec, sim, task, state = load_run(run_dir, engine, robot=robot)
-    chosen = runs.check_learners(spec, learners)
-    parts = [p for p in EVALUATIONS if p in set(parts)]
-    result = evaluate.evaluate_run(spec, sim, task, state, chosen, params, robot=robot, parts=parts,
-                                     progress=progress)
-    if robot == "hardware" and "transfer" in parts:
-        if progress:
-            progress(f"transfer: {transfer_repeats} walks per policy on the hardware robot")
-        result["transfer"] = transfer.hardware_transfer(run_dir, engine=engine, learners=chosen,
-                                                        repeats=transfer_repeats)
+    context = registry.load_context(run_dir, learners, engine, robot, params, transfer_repeats)
+    result = registry.evaluate_run(context, parts, progress)
     # Each robot's evaluation has its own place, so that one never overwrites the other's.
     out = Path(out) if out else run_dir if robot == "nominal" else run_dir / robot
-    table1_text = run_report.table1(train.learner_results(spec, state.learners))
-    summary = evaluation_report.write_eval_report(run_dir, result, out, table1_text)
+    table1_text = run_report.table1(train.learner_results(context.spec, context.state.learners))
+    summary = evaluation_report.write_eval_report(run_dir, result, registry.EVALUATIONS, out, table1_text)
     return {"report": str(out / "report.md"), "engine": result["engine"], "robot": robot, **summary}

@@ -162,10 +162,10 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     """``eval --run DIR``: velocity (Fig 7), return map (Fig 8), slopes and pushes of the run's
     final policies, all learners in one batch; JSON and PNG under OUT/eval, OUT/report.md."""
     from mjxcpg import api
+    from mjxcpg.evaluation.registry import EVALUATIONS
 
-    overrides = {name: getattr(args, name) for name in (
-        "seed", "hand_seconds", "fixed_point_steps", "perturbations", "slope_seconds", "max_slope_deg", "push_rounds")
-        if getattr(args, name) is not None}
+    fields = ["seed", "hand_seconds"] + [o.field for e in EVALUATIONS for o in e.options]
+    overrides = {name: getattr(args, name) for name in fields if getattr(args, name) is not None}
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
     return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,
                                  api.EvalParams(**overrides),

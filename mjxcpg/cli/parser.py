@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from collections.abc import Callable
 
 import mjxcpg
@@ -34,6 +33,8 @@ def _number(rule: checks.Range) -> Callable[[str], int | float]:
 
 def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.control.sim import ROBOTS
+    from mjxcpg.evaluation.protocol import EvalParams
+    from mjxcpg.evaluation.registry import EVALUATIONS
     from mjxcpg.physics.engines import ENGINES
     from mjxcpg.physics.model import MAX_SLOPE_DEG
     from mjxcpg.training.config import config_names, range_of
@@ -41,7 +42,6 @@ def build_parser() -> argparse.ArgumentParser:
     seconds = _number(checks.POSITIVE)
     count = _number(checks.COUNT)
     index = _number(checks.INDEX)
-    non_negative_count = _number(checks.NON_NEGATIVE_COUNT)
     slope = _number(checks.Range(low=-MAX_SLOPE_DEG, high=MAX_SLOPE_DEG))
 
     parser = _Parser(prog="mjxcpg", description=DESCRIPTION)
@@ -136,18 +136,14 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--hand-seconds", type=_number(checks.NON_NEGATIVE), default=None,
                             help="hand-designed feedback first for this long, as at a learning trial's start "
                                  "(default 0: each policy from standing)")
-    evaluation.add_argument("--fixed-point-steps", type=non_negative_count, default=None,
-                            help="unperturbed gait cycles for velocity and fixed point (default 100)")
-    evaluation.add_argument("--perturbations", type=non_negative_count, default=None,
-                            help="return-map perturbations (default 50)")
-    evaluation.add_argument("--slope-seconds", type=seconds, default=None,
-                            help="walk on each slope this long (default 20)")
-    evaluation.add_argument("--max-slope-deg", type=_number(dataclasses.replace(checks.NON_NEGATIVE_COUNT, high=MAX_SLOPE_DEG)), default=None,
-                            help="steepest inclination tried each way (default 15)")
-    evaluation.add_argument("--push-rounds", type=non_negative_count, default=None,
-                            help="bisection rounds per push direction (default 7)")
-    evaluation.add_argument("--skip", nargs="+", choices=("return_map", "slopes", "pushes", "transfer"),
-                            help="evaluations to leave out (transfer: --robot hardware only)")
+    defaults = EvalParams()
+    for registered in EVALUATIONS:
+        for option in registered.options:
+            evaluation.add_argument(option.flag, type=_number(option.rule), default=None,
+                                    help=f"{option.help} (default {getattr(defaults, option.field):g})")
+    only_on = "; ".join(f"{e.name}: --robot {' or '.join(e.robots)} only" for e in EVALUATIONS if e.robots)
+    evaluation.add_argument("--skip", nargs="+", choices=tuple(e.name for e in EVALUATIONS),
+                            help=f"evaluations to leave out ({only_on})")
     evaluation.add_argument("--transfer-repeats", type=count, default=20,
                             help="with --robot hardware: walks per policy, each with other sensor noise")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "

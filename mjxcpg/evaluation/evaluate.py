@@ -29,9 +29,8 @@ depend on which other learners are evaluated with it.
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -41,7 +40,6 @@ from mjxcpg.control.sim import Simulation, make_simulation
 from mjxcpg.evaluation.protocol import PUSH_DIRECTIONS, EvalParams, Protocol, make_protocol
 from mjxcpg.evaluation.rollout import EvalState, TouchdownLog, learner_keys, make_runner
 from mjxcpg.learning.learner import Task
-from mjxcpg.training import runs
 
 
 # ---------------------------------------------------------------- analysis (host side)
@@ -191,32 +189,3 @@ def evaluate_pushes(sim: Simulation, task: Task, weights: Any, learners: Sequenc
         out.append({name: {"impulse": float(lo) if ok else 0.0, "capped": bool(hi == params.max_impulse)}
                     for name, lo, hi, ok in zip(names, low[rows], high[rows], survived_any[rows])})
     return out
-
-
-def evaluate_run(spec, sim: Simulation, task: Task, state, learners: Sequence[int] | None = None,
-                 params: EvalParams = EvalParams(), robot: str = "nominal",
-                 parts: Sequence[str] = ("return_map", "slopes", "pushes"),
-                 progress: Callable[[str], None] | None = None) -> dict:
-    """All evaluations of the chosen learners of a loaded run (``runs.load_run``)."""
-    chosen = runs.check_learners(spec, learners)
-    rows = jnp.asarray(chosen)
-    weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
-    book = jax.device_get(state.learners.book)
-    result = {"engine": sim.engine.name, "robot": robot, "params": dataclasses.asdict(params),
-              "learners": [{"learner": k, "k_s": spec.k_s[k], "seed": spec.seeds[k],
-                            "succeeded": bool(book.trials_to_success[k] >= 0),
-                            "trials": int(book.trial[k])} for k in chosen]}
-    say = progress or (lambda _: None)
-    if "return_map" in parts:
-        say("velocity and return map")
-        for row, r in zip(result["learners"], evaluate_return_map(sim, task, weights, chosen, params)):
-            row["return_map"] = r
-    if "slopes" in parts:
-        say("slopes")
-        for row, r in zip(result["learners"], evaluate_slopes(sim, task, weights, chosen, params, robot=robot)):
-            row["slopes"] = r
-    if "pushes" in parts:
-        say("pushes")
-        for row, r in zip(result["learners"], evaluate_pushes(sim, task, weights, chosen, params)):
-            row["pushes"] = r
-    return result

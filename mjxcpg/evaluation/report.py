@@ -1,11 +1,13 @@
 """What ``mjxcpg eval`` writes: evaluation.json, the evaluation plots and report.md, every
-figure beside the paper's."""
+figure beside the paper's.  Each evaluation has its summary figures (``summarise_*``) and its
+section of report.md with its plots (``*_section``); ``registry`` pairs them with its run."""
 
 from __future__ import annotations
 
 import json
 from collections import defaultdict
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -26,53 +28,20 @@ def _fmt(value: float | None, spec: str = ".3f", scale: float = 1.0) -> str:
     return format(value * scale, spec) if _finite(value) else "-"
 
 
-def eval_summary(result: dict) -> dict:
-    """The headline figures of an evaluation, beside the paper's."""
+def _succeeded(result: dict) -> list[dict]:
+    return [r for r in result["learners"] if r["succeeded"]]
+
+
+def base_summary(result: dict) -> dict:
+    """The summary's figures that every evaluation has: learners and how many learned."""
     rows = result["learners"]
-    out: dict = {"learners": len(rows), "succeeded": sum(r["succeeded"] for r in rows)}
-    good = [r for r in rows if r["succeeded"]]
-    if rows and "return_map" in rows[0]:
-        fitted = [r for r in good if r["return_map"]["eigenvalue"] is not None]
-        stable = [r for r in fitted if r["return_map"]["stable"] and not r["return_map"]["fell"]]
-        eig = [r["return_map"]["eigenvalue"] for r in fitted]
-        by_ks: dict = defaultdict(list)
-        for r in good:
-            if not r["return_map"]["fell"] and _finite(r["return_map"]["mean_vx"]):
-                by_ks[r["k_s"]].append(r["return_map"]["mean_vx"])
-        out.update(
-            velocity_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(by_ks.items())},
-            eigenvalue_median=float(np.median(eig)) if eig else None,
-            eigenvalue_range=[float(min(eig)), float(max(eig))] if eig else None,
-            stable_successful=f"{len(stable)}/{len(good)}", paper_eigenvalue=PAPER_EIGENVALUE)
-    if rows and "slopes" in rows[0]:
-        walked = [r["slopes"] for r in good if r["slopes"]["uphill_deg"] is not None]
-        out.update(
-            slope_uphill_median=float(np.median([s["uphill_deg"] for s in walked])) if walked else None,
-            slope_downhill_median=float(np.median([s["downhill_deg"] for s in walked])) if walked else None,
-            paper_slopes_deg=list(PAPER_SLOPES_DEG))
-    if rows and "pushes" in rows[0]:
-        for name in rows[0]["pushes"]:
-            values = [r["pushes"][name]["impulse"] for r in good]
-            out[f"push_{name}_median_Ns"] = float(np.median(values)) if values else None
-    return out
+    return {"learners": len(rows), "succeeded": sum(r["succeeded"] for r in rows)}
 
 
-def write_eval_report(run_dir: Path, result: dict, out_dir: Path | None = None,
-                      table1_text: str | None = None) -> dict:
-    """``eval/evaluation.json``, the PNG plots under ``eval/`` and ``report.md``: every figure
-    beside the paper's, the plots embedded, and Table 1: the run's ``table1.md``, or else
-    ``table1_text`` (e.g. made from the checkpoint of a run still learning).
-
-    Written under ``out_dir`` (default: the run directory).  Returns the headline summary.
-    """
-    out_dir = out_dir or run_dir
-    eval_dir = out_dir / "eval"
-    eval_dir.mkdir(parents=True, exist_ok=True)
-    rows = result["learners"]
-    summary = eval_summary(result)
-    (eval_dir / "evaluation.json").write_text(json.dumps(json_safe({**result, "summary": summary}), indent=1))
+def header(run_dir: Path, result: dict, summary: dict, table1_text: str | None) -> list[str]:
+    """report.md's title, what was evaluated and how, and Table 1."""
     lines = [f"# Evaluation of `{run_dir}`", "",
-             f"Engine `{result['engine']}`, robot `{result['robot']}`, {len(rows)} learner(s), "
+             f"Engine `{result['engine']}`, robot `{result['robot']}`, {len(result['learners'])} learner(s), "
              f"{summary['succeeded']} of which succeeded in learning. Every policy is the final "
              "policy's mean (no exploration noise), walking from the standing pose; all learners in "
              "one batch; deterministic by `--seed` "
@@ -83,106 +52,191 @@ def write_eval_report(run_dir: Path, result: dict, out_dir: Path | None = None,
     elif table1_text:
         lines += ["## Table 1: learning (from the checkpoint; the run has no table1.md yet)", "",
                   table1_text.strip(), ""]
-    def has(part: str) -> bool:
-        return bool(rows) and part in rows[0]
+    return lines
 
-    if has("return_map"):
-        plots.velocity_vs_ks(rows, eval_dir / "velocity_vs_ks.png", reference=PAPER_VELOCITY)
-        plots.eigenvalues(rows, eval_dir / "eigenvalues.png", reference=PAPER_EIGENVALUE)
-        lines += ["## Velocity against k_s (Fig 7)", "",
-                  f"Mean forward speed over {result['params']['fixed_point_steps']} unperturbed gait cycles "
-                  f"after {result['params']['settle_seconds']:g} s. The paper: velocity rises with k_s "
-                  f"(Fig 7); its Fig 6 gait walks at {PAPER_VELOCITY} m/s.", "",
-                  "| k_s | policies walking (successful) | mean velocity (m/s) | per policy (m/s) |",
-                  "|---|---|---|---|"]
-        by_ks: dict = defaultdict(list)
-        for r in rows:
-            by_ks[r["k_s"]].append(r)
-        for k_s in sorted(by_ks):
-            ok = [r for r in by_ks[k_s] if r["succeeded"] and not r["return_map"]["fell"]]
-            mean = summary["velocity_by_ks"].get(f"{k_s:g}")
-            each = ", ".join(_fmt(r["return_map"]["mean_vx"]) + ("" if r["succeeded"] else " (not learned)")
-                             for r in by_ks[k_s])
-            lines.append(f"| {k_s:g} | {len(ok)}/{sum(r['succeeded'] for r in by_ks[k_s])} | {_fmt(mean)} | {each} |")
-        lines += ["", "![velocity vs k_s](eval/velocity_vs_ks.png)", "",
-                  "## Return-map stability (Fig 8)", "",
-                  "State: the step length (fore-aft distance from the right ankle to the left) at each "
-                  "left touchdown. Perturbation: the target of (q5 - q6) offset by a uniform "
-                  f"+/-{result['params']['perturbation_amplitude']:g} from a random moment to the next left "
-                  "touchdown (x_n); x_{n+1} is the touchdown after it. Eigenvalue: least-squares slope "
-                  f"of x_(n+1) on x_n. The paper: {PAPER_EIGENVALUE} from 50 perturbations.", "",
-                  f"Successful policies with |eigenvalue| < 1 (and no fall): **{summary['stable_successful']}**; "
-                  f"median eigenvalue {_fmt(summary['eigenvalue_median'])}"
-                  + (f", range {summary['eigenvalue_range'][0]:.3f} to {summary['eigenvalue_range'][1]:.3f}"
-                     if summary["eigenvalue_range"] else "") + " (successful policies).", "",
-                  "| learner | k_s | learned | fell | fixed point (mm) | gait cycle (s) | pairs | eigenvalue +/- s.e. | paper |",
-                  "|---|---|---|---|---|---|---|---|---|"]
-        for r in rows:
-            rm = r["return_map"]
-            fell = f"at {rm['fall_seconds']:.1f} s" if rm["fell"] else "no"
-            lines.append(
-                f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
-                f"{fell} | {_fmt(rm['fixed_point'], '.1f', 1000)} | "
-                f"{_fmt(rm['gait_cycle_s'], '.2f')} | {rm['perturbations']} | "
-                f"{_fmt(rm['eigenvalue'])} +/- {_fmt(rm['eigenvalue_stderr'])} | {PAPER_EIGENVALUE} |")
-        lines += ["", "![eigenvalues](eval/eigenvalues.png)", ""]
-        for r in rows:
-            if r["return_map"]["perturbations"]:
-                name = f"return_map_{r['learner']:02d}.png"
-                plots.return_map(r["return_map"], eval_dir / name,
-                                 title=f"learner {r['learner']}, k_s={r['k_s']:g} (cf. Fig 8)")
-                lines.append(f"![return map, learner {r['learner']}](eval/{name})")
-        lines.append("")
-    if has("slopes"):
-        plots.slope_ranges(rows, eval_dir / "slopes.png", reference=PAPER_SLOPES_DEG)
-        up, down = summary["slope_uphill_median"], summary["slope_downhill_median"]
-        lines += ["## Slopes", "",
-                  f"Floor inclinations in 1-degree steps, {result['params']['slope_seconds']:g} s from standing "
-                  "without a fall; the range is contiguous from 0. The paper: "
-                  f"{PAPER_SLOPES_DEG[0]:+g} to {PAPER_SLOPES_DEG[1]:+g} degrees.", "",
-                  f"Median over the successful policies that walk on level ground: "
-                  f"{_fmt(up, '+.0f')} to {_fmt(down, '+.0f')} degrees.", "",
-                  "| learner | k_s | learned | uphill (deg) | downhill (deg) | paper |", "|---|---|---|---|---|---|"]
-        for r in rows:
-            s = r["slopes"]
-            lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
-                         f"{_fmt(s['uphill_deg'], '+.0f')} | {_fmt(s['downhill_deg'], '+.0f')} | "
-                         f"{PAPER_SLOPES_DEG[0]:+g} / {PAPER_SLOPES_DEG[1]:+g} |")
-        lines += ["", "![slopes](eval/slopes.png)", ""]
-    if has("pushes"):
-        plots.push_impulses(rows, eval_dir / "pushes.png")
-        names = list(rows[0]["pushes"])
-        p = result["params"]
-        lines += ["## Pushes", "",
-                  f"A force on the pelvis for {p['push_seconds']:g} s from the first left touchdown after "
-                  f"{p['push_after_seconds']:g} s; survived = no fall in the next {p['push_observe_seconds']:g} s. "
-                  f"Largest survived impulse by bisection over [0, {p['max_impulse']:g}] N s "
-                  f"({p['push_rounds']} rounds; `>=` when every impulse tried was survived). "
-                  "The paper reports no push figures.", "",
-                  "| learner | k_s | learned | " + " | ".join(f"{n} (N s)" for n in names) + " |",
-                  "|---|---|---|" + "---|" * len(names)]
-        for r in rows:
-            cells = [(">=" if r["pushes"][n]["capped"] else "") + f"{r['pushes'][n]['impulse']:.2f}" for n in names]
-            lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
-                         + " | ".join(cells) + " |")
-        medians = ", ".join(f"{n} {_fmt(summary[f'push_{n}_median_Ns'], '.2f')}" for n in names)
-        lines += ["", f"Medians over the successful policies (N s): {medians}.", "",
-                  "![pushes](eval/pushes.png)", ""]
-    if "transfer" in result:
-        t = result["transfer"]
-        summary["walk_hardware"] = f"{t['walk_hardware']}/{t['succeeded_in_simulation']}"
-        lines += ["## Transfer to the hardware robot", "",
-                  f"Each successful policy walks {t['seconds']:g} s on the hardware robot "
-                  f"(`docs/hardware.md`) {t['repeats']} times, each with other sensor noise.", "",
-                  f"Walked in every try: **{t['walk_hardware']} of {t['succeeded_in_simulation']}**; "
-                  f"in at least one: {t['walk_hardware_any']}; on the nominal robot: {t['walk_nominal']}. "
-                  f"The paper: {PAPER_HARDWARE[0]} of {PAPER_HARDWARE[1]} on the real QRIO.", "",
-                  "| learner | k_s | learned | walks (of tries) | mean vx hardware / nominal (m/s) |",
-                  "|---|---|---|---|---|"]
-        for r in t["learners"]:
-            lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
-                         f"{r['walks_hardware']}/{t['repeats']} | {_fmt(r['mean_vx_hardware'])} / "
-                         f"{_fmt(r['mean_vx_nominal'])} |")
-        lines.append("")
+
+# ---------------------------------------------------------------- velocity and return map
+
+def summarise_return_map(result: dict) -> dict:
+    good = _succeeded(result)
+    fitted = [r for r in good if r["return_map"]["eigenvalue"] is not None]
+    stable = [r for r in fitted if r["return_map"]["stable"] and not r["return_map"]["fell"]]
+    eig = [r["return_map"]["eigenvalue"] for r in fitted]
+    by_ks: dict = defaultdict(list)
+    for r in good:
+        if not r["return_map"]["fell"] and _finite(r["return_map"]["mean_vx"]):
+            by_ks[r["k_s"]].append(r["return_map"]["mean_vx"])
+    return dict(
+        velocity_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(by_ks.items())},
+        eigenvalue_median=float(np.median(eig)) if eig else None,
+        eigenvalue_range=[float(min(eig)), float(max(eig))] if eig else None,
+        stable_successful=f"{len(stable)}/{len(good)}", paper_eigenvalue=PAPER_EIGENVALUE)
+
+
+def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
+    """Fig 7 and Fig 8: velocity against k_s, the return maps and their eigenvalues."""
+    rows = result["learners"]
+    plots.velocity_vs_ks(rows, eval_dir / "velocity_vs_ks.png", reference=PAPER_VELOCITY)
+    plots.eigenvalues(rows, eval_dir / "eigenvalues.png", reference=PAPER_EIGENVALUE)
+    lines = ["## Velocity against k_s (Fig 7)", "",
+             f"Mean forward speed over {result['params']['fixed_point_steps']} unperturbed gait cycles "
+             f"after {result['params']['settle_seconds']:g} s. The paper: velocity rises with k_s "
+             f"(Fig 7); its Fig 6 gait walks at {PAPER_VELOCITY} m/s.", "",
+             "| k_s | policies walking (successful) | mean velocity (m/s) | per policy (m/s) |",
+             "|---|---|---|---|"]
+    by_ks: dict = defaultdict(list)
+    for r in rows:
+        by_ks[r["k_s"]].append(r)
+    for k_s in sorted(by_ks):
+        ok = [r for r in by_ks[k_s] if r["succeeded"] and not r["return_map"]["fell"]]
+        mean = summary["velocity_by_ks"].get(f"{k_s:g}")
+        each = ", ".join(_fmt(r["return_map"]["mean_vx"]) + ("" if r["succeeded"] else " (not learned)")
+                         for r in by_ks[k_s])
+        lines.append(f"| {k_s:g} | {len(ok)}/{sum(r['succeeded'] for r in by_ks[k_s])} | {_fmt(mean)} | {each} |")
+    lines += ["", "![velocity vs k_s](eval/velocity_vs_ks.png)", "",
+              "## Return-map stability (Fig 8)", "",
+              "State: the step length (fore-aft distance from the right ankle to the left) at each "
+              "left touchdown. Perturbation: the target of (q5 - q6) offset by a uniform "
+              f"+/-{result['params']['perturbation_amplitude']:g} from a random moment to the next left "
+              "touchdown (x_n); x_{n+1} is the touchdown after it. Eigenvalue: least-squares slope "
+              f"of x_(n+1) on x_n. The paper: {PAPER_EIGENVALUE} from 50 perturbations.", "",
+              f"Successful policies with |eigenvalue| < 1 (and no fall): **{summary['stable_successful']}**; "
+              f"median eigenvalue {_fmt(summary['eigenvalue_median'])}"
+              + (f", range {summary['eigenvalue_range'][0]:.3f} to {summary['eigenvalue_range'][1]:.3f}"
+                 if summary["eigenvalue_range"] else "") + " (successful policies).", "",
+              "| learner | k_s | learned | fell | fixed point (mm) | gait cycle (s) | pairs | eigenvalue +/- s.e. | paper |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        rm = r["return_map"]
+        fell = f"at {rm['fall_seconds']:.1f} s" if rm["fell"] else "no"
+        lines.append(
+            f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
+            f"{fell} | {_fmt(rm['fixed_point'], '.1f', 1000)} | "
+            f"{_fmt(rm['gait_cycle_s'], '.2f')} | {rm['perturbations']} | "
+            f"{_fmt(rm['eigenvalue'])} +/- {_fmt(rm['eigenvalue_stderr'])} | {PAPER_EIGENVALUE} |")
+    lines += ["", "![eigenvalues](eval/eigenvalues.png)", ""]
+    for r in rows:
+        if r["return_map"]["perturbations"]:
+            name = f"return_map_{r['learner']:02d}.png"
+            plots.return_map(r["return_map"], eval_dir / name,
+                             title=f"learner {r['learner']}, k_s={r['k_s']:g} (cf. Fig 8)")
+            lines.append(f"![return map, learner {r['learner']}](eval/{name})")
+    lines.append("")
+    return lines
+
+
+# ---------------------------------------------------------------- slopes
+
+def summarise_slopes(result: dict) -> dict:
+    walked = [r["slopes"] for r in _succeeded(result) if r["slopes"]["uphill_deg"] is not None]
+    return dict(
+        slope_uphill_median=float(np.median([s["uphill_deg"] for s in walked])) if walked else None,
+        slope_downhill_median=float(np.median([s["downhill_deg"] for s in walked])) if walked else None,
+        paper_slopes_deg=list(PAPER_SLOPES_DEG))
+
+
+def slopes_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
+    """The range of floor inclinations each policy walks, beside the paper's."""
+    rows = result["learners"]
+    plots.slope_ranges(rows, eval_dir / "slopes.png", reference=PAPER_SLOPES_DEG)
+    up, down = summary["slope_uphill_median"], summary["slope_downhill_median"]
+    lines = ["## Slopes", "",
+             f"Floor inclinations in 1-degree steps, {result['params']['slope_seconds']:g} s from standing "
+             "without a fall; the range is contiguous from 0. The paper: "
+             f"{PAPER_SLOPES_DEG[0]:+g} to {PAPER_SLOPES_DEG[1]:+g} degrees.", "",
+             f"Median over the successful policies that walk on level ground: "
+             f"{_fmt(up, '+.0f')} to {_fmt(down, '+.0f')} degrees.", "",
+             "| learner | k_s | learned | uphill (deg) | downhill (deg) | paper |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        s = r["slopes"]
+        lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
+                     f"{_fmt(s['uphill_deg'], '+.0f')} | {_fmt(s['downhill_deg'], '+.0f')} | "
+                     f"{PAPER_SLOPES_DEG[0]:+g} / {PAPER_SLOPES_DEG[1]:+g} |")
+    lines += ["", "![slopes](eval/slopes.png)", ""]
+    return lines
+
+
+# ---------------------------------------------------------------- pushes
+
+def summarise_pushes(result: dict) -> dict:
+    rows, good = result["learners"], _succeeded(result)
+    out = {}
+    for name in rows[0]["pushes"]:
+        values = [r["pushes"][name]["impulse"] for r in good]
+        out[f"push_{name}_median_Ns"] = float(np.median(values)) if values else None
+    return out
+
+
+def pushes_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
+    """The largest pelvis impulse each policy survives, per direction."""
+    rows = result["learners"]
+    plots.push_impulses(rows, eval_dir / "pushes.png")
+    names = list(rows[0]["pushes"])
+    p = result["params"]
+    lines = ["## Pushes", "",
+             f"A force on the pelvis for {p['push_seconds']:g} s from the first left touchdown after "
+             f"{p['push_after_seconds']:g} s; survived = no fall in the next {p['push_observe_seconds']:g} s. "
+             f"Largest survived impulse by bisection over [0, {p['max_impulse']:g}] N s "
+             f"({p['push_rounds']} rounds; `>=` when every impulse tried was survived). "
+             "The paper reports no push figures.", "",
+             "| learner | k_s | learned | " + " | ".join(f"{n} (N s)" for n in names) + " |",
+             "|---|---|---|" + "---|" * len(names)]
+    for r in rows:
+        cells = [(">=" if r["pushes"][n]["capped"] else "") + f"{r['pushes'][n]['impulse']:.2f}" for n in names]
+        lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
+                     + " | ".join(cells) + " |")
+    medians = ", ".join(f"{n} {_fmt(summary[f'push_{n}_median_Ns'], '.2f')}" for n in names)
+    lines += ["", f"Medians over the successful policies (N s): {medians}.", "",
+              "![pushes](eval/pushes.png)", ""]
+    return lines
+
+
+# ---------------------------------------------------------------- transfer to the hardware robot
+
+def summarise_transfer(result: dict) -> dict:
+    t = result["transfer"]
+    return {"walk_hardware": f"{t['walk_hardware']}/{t['succeeded_in_simulation']}"}
+
+
+def transfer_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
+    """How many successful policies walk on the hardware robot, beside the paper's 14 of 20."""
+    t = result["transfer"]
+    lines = ["## Transfer to the hardware robot", "",
+             f"Each successful policy walks {t['seconds']:g} s on the hardware robot "
+             f"(`docs/hardware.md`) {t['repeats']} times, each with other sensor noise.", "",
+             f"Walked in every try: **{t['walk_hardware']} of {t['succeeded_in_simulation']}**; "
+             f"in at least one: {t['walk_hardware_any']}; on the nominal robot: {t['walk_nominal']}. "
+             f"The paper: {PAPER_HARDWARE[0]} of {PAPER_HARDWARE[1]} on the real QRIO.", "",
+             "| learner | k_s | learned | walks (of tries) | mean vx hardware / nominal (m/s) |",
+             "|---|---|---|---|---|"]
+    for r in t["learners"]:
+        lines.append(f"| {r['learner']} | {r['k_s']:g} | {'yes' if r['succeeded'] else 'no'} | "
+                     f"{r['walks_hardware']}/{t['repeats']} | {_fmt(r['mean_vx_hardware'])} / "
+                     f"{_fmt(r['mean_vx_nominal'])} |")
+    lines.append("")
+    return lines
+
+
+def write_eval_report(run_dir: Path, result: dict, evaluations: Sequence, out_dir: Path | None = None,
+                      table1_text: str | None = None) -> dict:
+    """``eval/evaluation.json``, the PNG plots under ``eval/`` and ``report.md``: every figure
+    beside the paper's, the plots embedded, and Table 1: the run's ``table1.md``, or else
+    ``table1_text`` (e.g. made from the checkpoint of a run still learning).
+
+    ``evaluations`` are the registered ones (``registry.EVALUATIONS``), in report order; each
+    that ``result`` holds adds its summary figures and its section.  Written under ``out_dir``
+    (default: the run directory).  Returns the headline summary.
+    """
+    out_dir = out_dir or run_dir
+    eval_dir = out_dir / "eval"
+    eval_dir.mkdir(parents=True, exist_ok=True)
+    present = [e for e in evaluations if e.holds(result)]
+    summary = base_summary(result)
+    for evaluation in present:
+        summary.update(evaluation.summarise(result))
+    (eval_dir / "evaluation.json").write_text(json.dumps(json_safe({**result, "summary": summary}), indent=1))
+    lines = header(run_dir, result, summary, table1_text)
+    for evaluation in present:
+        lines += evaluation.section(result, summary, eval_dir)
     (out_dir / "report.md").write_text("\n".join(lines))
     return summary

@@ -1,0 +1,134 @@
+"""Every evaluation ``mjxcpg eval`` can run, in the order it runs and reports them.
+
+An evaluation is one record: its name (a choice of ``--skip``), the ``EvalParams`` fields it
+owns (each one a flag of ``eval``), what it runs on a loaded run's chosen policies, the
+figures it adds to the summary, and its section of report.md with its plots.  Adding one is
+a module with those functions and its line in ``EVALUATIONS``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+
+from mjxcpg.control.sim import Simulation
+from mjxcpg.evaluation import evaluate, report, transfer
+from mjxcpg.evaluation.protocol import EvalParams
+from mjxcpg.learning.learner import Task
+from mjxcpg.physics.model import MAX_SLOPE_DEG
+from mjxcpg.training import checks, runs
+from mjxcpg.training.train import RunSpec
+
+
+@dataclasses.dataclass(frozen=True)
+class Option:
+    """A flag of ``mjxcpg eval``: ``--field-name`` sets ``EvalParams.field_name``."""
+
+    field: str
+    rule: checks.Range
+    help: str
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.field.replace("_", "-")
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalContext:
+    """What every evaluation is given: a loaded run, its chosen learners' policies and how to walk them."""
+
+    run_dir: Path
+    spec: RunSpec
+    sim: Simulation
+    task: Task
+    state: Any                  # the run's checkpointed sweep state
+    learners: list[int]
+    weights: Any                # the chosen learners' policy weights, one row each
+    robot: str
+    engine: str | None          # as asked; None: the run's
+    params: EvalParams
+    transfer_repeats: int       # not in EvalParams: that is written whole into evaluation.json
+
+
+def load_context(run_dir: Path, learners: Sequence[int] | None, engine: str | None, robot: str,
+                 params: EvalParams, transfer_repeats: int) -> EvalContext:
+    spec, sim, task, state = runs.load_run(run_dir, engine, robot=robot)
+    chosen = runs.check_learners(spec, learners)
+    weights = jax.tree.map(lambda w: w[jnp.asarray(chosen)], state.learners.weights)
+    return EvalContext(run_dir, spec, sim, task, state, chosen, weights, robot, engine, params, transfer_repeats)
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """One evaluation: what it runs, what it adds to the summary and to report.md."""
+
+    name: str
+    title: str                                          # its progress line
+    run: Callable[[EvalContext], Any]                   # one result per learner, or one for the run
+    summarise: Callable[[dict], dict]                   # the summary's figures, from the whole result
+    section: Callable[[dict, dict, Path], list[str]]    # (result, summary, eval dir): report.md lines, plots written
+    options: tuple[Option, ...] = ()
+    per_learner: bool = True    # its result is a list, one per learner, kept in each learner's row
+    robots: tuple[str, ...] | None = None               # the robots it applies to; None: every one
+
+    def applies_to(self, robot: str) -> bool:
+        return self.robots is None or robot in self.robots
+
+    def holds(self, result: dict) -> bool:
+        """Whether ``result`` (``evaluate_run``'s) has this evaluation's results."""
+        if self.per_learner:
+            return bool(result["learners"]) and self.name in result["learners"][0]
+        return self.name in result
+
+
+_COUNT = checks.NON_NEGATIVE_COUNT
+
+EVALUATIONS: tuple[Evaluation, ...] = (
+    Evaluation("return_map", "velocity and return map",
+               lambda c: evaluate.evaluate_return_map(c.sim, c.task, c.weights, c.learners, c.params),
+               report.summarise_return_map, report.return_map_section,
+               options=(Option("fixed_point_steps", _COUNT, "unperturbed gait cycles for velocity and fixed point"),
+                        Option("perturbations", _COUNT, "return-map perturbations"))),
+    Evaluation("slopes", "slopes",
+               lambda c: evaluate.evaluate_slopes(c.sim, c.task, c.weights, c.learners, c.params, robot=c.robot),
+               report.summarise_slopes, report.slopes_section,
+               options=(Option("slope_seconds", checks.POSITIVE, "walk on each slope this long"),
+                        Option("max_slope_deg", dataclasses.replace(_COUNT, high=MAX_SLOPE_DEG),
+                               "steepest inclination tried each way"))),
+    Evaluation("pushes", "pushes",
+               lambda c: evaluate.evaluate_pushes(c.sim, c.task, c.weights, c.learners, c.params),
+               report.summarise_pushes, report.pushes_section,
+               options=(Option("push_rounds", _COUNT, "bisection rounds per push direction"),)),
+    Evaluation("transfer", "transfer: walks per policy on the hardware robot",
+               lambda c: transfer.hardware_transfer(c.run_dir, engine=c.engine, learners=c.learners,
+                                                    repeats=c.transfer_repeats),
+               report.summarise_transfer, report.transfer_section, per_learner=False, robots=("hardware",)),
+)
+
+NAMES = tuple(e.name for e in EVALUATIONS)
+
+
+def evaluate_run(context: EvalContext, names: Sequence[str] = NAMES,
+                 progress: Callable[[str], None] | None = None) -> dict:
+    """The evaluations ``names`` (those that apply to the context's robot) of the context's learners."""
+    spec, book = context.spec, jax.device_get(context.state.learners.book)
+    result = {"engine": context.sim.engine.name, "robot": context.robot, "params": dataclasses.asdict(context.params),
+              "learners": [{"learner": k, "k_s": spec.k_s[k], "seed": spec.seeds[k],
+                            "succeeded": bool(book.trials_to_success[k] >= 0),
+                            "trials": int(book.trial[k])} for k in context.learners]}
+    for evaluation in EVALUATIONS:
+        if evaluation.name not in names or not evaluation.applies_to(context.robot):
+            continue
+        if progress:
+            progress(evaluation.title)
+        outcome = evaluation.run(context)
+        if evaluation.per_learner:
+            for row, r in zip(result["learners"], outcome):
+                row[evaluation.name] = r
+        else:
+            result[evaluation.name] = outcome
+    return result
