@@ -5,7 +5,7 @@ several VSR gains h_VSR and signs s (``ControllerParams.h_vsr``, ``vsr_sign``). 
 the table is two batched walks: K = 0, 0.5, 1, 2 (and -1 on the shipped row) with A_x = 15 mm,
 and K = 0 with A_x = 0.  A cell reads "walks V m/s" (mean forward speed after 2 s of settling),
 "steps" (A_x = 0, no fall) or "falls at T s".  Below the table: the entrained gait cycles
-and the backward walk quoted in the text.  About 11 s of CPU (``--alone``: 15 s):
+and the backward walk quoted in the text:
 
     NPROC=1 .venv/bin/python bench/model_tables.py
     NPROC=1 .venv/bin/python bench/model_tables.py --alone   # each robot in a batch of its own

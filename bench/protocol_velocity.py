@@ -24,8 +24,6 @@ from mjxcpg.control import walk
 from mjxcpg.learning.learner import policy_mean_feedback
 from mjxcpg.training import runs, stats
 
-HAND_SECONDS = 2.0
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -33,12 +31,13 @@ def main() -> None:
     parser.add_argument("--learners", type=int, nargs="+", default=None, help="default: all")
     args = parser.parse_args()
     spec, sim, task, state = runs.load_run(args.run)
-    chosen = args.learners if args.learners is not None else list(range(spec.batch))
+    chosen = runs.check_learners(spec, args.learners)
+    hand_seconds = sum(spec.trial.hand_seconds) / 2  # the middle of the trials' hand-over window
     weights = jax.tree.map(lambda w: w[jnp.asarray(chosen)], state.learners.weights)
     k_s = np.array([spec.k_s[i] for i in chosen])
-    for label, hand_seconds in (("from standing", 0.0), (f"after {HAND_SECONDS:g} s of the hand-designed feedback",
-                                                          HAND_SECONDS)):
-        trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, 20.0, hand_seconds=hand_seconds)
+    for label, start in (("from standing", 0.0), (f"after {hand_seconds:g} s of the hand-designed feedback",
+                                                 hand_seconds)):
+        trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, 20.0, hand_seconds=start)
         gaits = walk.summarise(trace, sim.control_dt)
         v = np.array([g.mean_vx for g in gaits])
         fell = np.array([g.fell for g in gaits])
@@ -51,9 +50,12 @@ def main() -> None:
             rho = stats.spearman(groups, [means[k].value for k in groups])
             print(f"\nSpearman rho {rho:.2f}; slope {stats.slope_interval(k_s, v).format('.4f')} m/s per unit k_s")
         zero = walk.summarise(walk.walk_from_standing(sim, lambda obs, k: 0.0 * k, jnp.zeros(1), 20.0,
-                                                     hand_seconds=hand_seconds), sim.control_dt)[0]
+                                                     hand_seconds=start), sim.control_dt)[0]
         print(f"a_5 = 0 (control c), the same walk: {zero.mean_vx:.3f} m/s" + (", fell" if zero.fell else ""))
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except runs.RunError as error:
+        raise SystemExit(f"protocol_velocity: {error}") from None

@@ -247,9 +247,10 @@ def test_online_learning_bad_input_is_one_line(argv, message, capsys, tmp_path):
 
 def test_online_learning_never_replaces_its_source(finished_quick, capsys):
     before = {p: p.read_bytes() for p in finished_quick.rglob("*") if p.is_file() and p.name != ".lock"}
-    argv = ["learn", "--from", str(finished_quick), "--out", str(finished_quick), "--force", "--trials", "1"]
-    assert main(argv) == 2
-    assert "is the run learned from" in capsys.readouterr().err
+    for out in (finished_quick, finished_quick.parent):  # the run itself, or a directory holding it
+        argv = ["learn", "--from", str(finished_quick), "--out", str(out), "--force", "--trials", "1"]
+        assert main(argv) == 2
+        assert "is or holds the run learned from" in capsys.readouterr().err
     assert {p: p.read_bytes() for p in finished_quick.rglob("*") if p.is_file() and p.name != ".lock"} == before
 
 

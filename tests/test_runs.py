@@ -256,7 +256,7 @@ def test_ten_kills_at_random_moments_end_as_the_uninterrupted_run(tmp_path, caps
     waits for one of the next checkpoint writes to begin, or falls at a random time from the
     start (compilation included) but before the run could end.  While a killed run's successor holds the lock, a second
     sweep on its directory is refused.  The final results equal, byte for byte, those of the
-    same config run without a kill.  Several minutes on 2 cores."""
+    same config run without a kill."""
     spec = config.spec_to_dict(config.load_spec("quick")) | {"chunk_seconds": 0.5}
     path = tmp_path / "quick_short_chunks.json"
     path.write_text(json.dumps(spec))

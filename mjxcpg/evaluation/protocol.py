@@ -81,6 +81,12 @@ def make_protocol(mode: str, params: EvalParams, layout: Layout, dt: float) -> P
     def steps(seconds: float) -> int:
         return max(1, round(seconds / dt))
 
+    # Velocity, fixed point and pushes are measured after the settling time: the policy must
+    # be acting by then.
+    if params.hand_seconds < 0 or 0 < min(params.settle_seconds, params.push_after_seconds) <= params.hand_seconds:
+        raise ValueError(f"hand_seconds must be in [0, {min(params.settle_seconds, params.push_after_seconds):g}) s, "
+                         f"the settling time; got {params.hand_seconds:g}")
+
     common = dict(settle_steps=steps(params.settle_seconds),
                   touchdown_force=params.touchdown_force * layout.weight,
                   liftoff_force=params.liftoff_force * layout.weight,

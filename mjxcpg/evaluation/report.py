@@ -43,8 +43,10 @@ def header(run_dir: Path, result: dict, summary: dict, table1_text: str | None) 
     lines = [f"# Evaluation of `{run_dir}`", "",
              f"Engine `{result['engine']}`, robot `{result['robot']}`, {len(result['learners'])} learner(s), "
              f"{summary['succeeded']} of which succeeded in learning. Every policy is the final "
-             "policy's mean (no exploration noise), walking from the standing pose; all learners in "
-             "one batch; deterministic by `--seed` "
+             "policy's mean (no exploration noise), walking from the standing pose"
+             + (f" after {result['params']['hand_seconds']:g} s of the hand-designed feedback"
+                if result['params'].get('hand_seconds') else "")
+             + "; all learners in one batch; deterministic by `--seed` "
              f"({result['params']['seed']}). Protocol and choices: `docs/evaluation.md`.", ""]
     table = run_dir / "table1.md"
     if table.is_file():

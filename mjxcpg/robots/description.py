@@ -37,7 +37,7 @@ class GaitConstants:
 
 
 # The robot the published constants belong to: QRIO's hip-to-ankle length (thigh + shin) and
-# the paper's numbers (Velocity Control and Experiments sections; h' chosen in this project).
+# the paper's numbers (Velocity Control and Experiments sections, and h' of eq 27).
 REFERENCE_LEG_LENGTH = 0.24
 REFERENCE_GRAVITY = 9.81
 REFERENCE_GAIT = GaitConstants(tau=0.105, tau_adapt=0.132, amp_x=0.015, amp_z=0.005, z0=0.215, h_ref=0.272)

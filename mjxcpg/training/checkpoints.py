@@ -3,6 +3,7 @@ a sha256 of the leaves; the newest intact one read back, damaged ones set aside.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -88,9 +89,9 @@ def save_next(manager: ocp.CheckpointManager, state: Any, spec: train.RunSpec) -
 
 def write_checkpoint(out: Path, state: Any, spec: train.RunSpec) -> None:
     """Save ``state`` as the next checkpoint of the run directory ``out`` and wait for it."""
-    manager = manager_of(out, writer=True)
-    written(out, lambda: save_next(manager, state, spec))
-    written(out, manager.wait_until_finished)
+    with contextlib.closing(manager_of(out, writer=True)) as manager:
+        written(out, lambda: save_next(manager, state, spec))
+        written(out, manager.wait_until_finished)
 
 
 class DamagedCheckpoint(Exception):

@@ -54,8 +54,8 @@ def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
     source_spec, _ = runs.read_config(source)  # a bad source is refused before ``out`` is made
     runs.check_learners(source_spec, [learner])
-    if Path(out).resolve() == Path(source).resolve():
-        raise runs.RunError(f"--out {out} is the run learned from; choose another directory")
+    if Path(source).resolve().is_relative_to(Path(out).resolve()):
+        raise runs.RunError(f"--out {out} is or holds the run learned from; choose another directory")
     with runs.locked(out):
         if runs.run_files(out):
             if not force:

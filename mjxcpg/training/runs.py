@@ -158,7 +158,11 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
         write_text_atomic(config_path, json.dumps(record | {"engine": sim.engine.name}, indent=1))
     manager = manager_of(out, writer=True)
     if manager.all_steps():
-        state, step, damaged = restore_state(manager, state, spec)
+        try:
+            state, step, damaged = restore_state(manager, state, spec)
+        except BaseException:
+            manager.close()
+            raise
         if damaged:
             aside = set_aside(out, [d for d, _ in damaged])
             notice(f"{out}: {damage_text(step, damaged)}; the damaged ones are moved to {aside}")
