@@ -38,6 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.physics.engines import ENGINES
     from mjxcpg.physics.model import MAX_SLOPE_DEG
     from mjxcpg.training.config import config_names, range_of
+    from mjxcpg.training.controls import CONTROLS
+    from mjxcpg.training.online import REWARD_SOURCES
 
     seconds = _number(checks.POSITIVE)
     count = _number(checks.COUNT)
@@ -81,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--learner", type=index, default=0, help="learner index within --from's run")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
                        help="robot to continue on with --from (hardware: docs/hardware.md)")
-    learn.add_argument("--reward", choices=("estimate", "truth"), default=None,
+    learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,
                        help="with --from: reward from the robot's sensors (default on hardware) "
                             "or the simulator's state (default on nominal)")
     run_options(learn)
@@ -98,8 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--run", required=True, help="a finished sweep's run directory")
     ctl.add_argument("--trials", type=count, default=None,
                      help="trial budget of each control learner (default 400, at most the run's)")
-    ctl.add_argument("--only", nargs="+", choices=("learning_off", "learning_off_min_sigma", "zero_feedback",
-                                                   "hand_feedback"), help="run only these controls")
+    ctl.add_argument("--only", nargs="+", choices=tuple(CONTROLS), help="run only these controls")
     ctl.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
     ctl.add_argument("--resume", action="store_true", help="continue controls already started")
     ctl.add_argument("--force", action="store_true", help="replace controls already run")

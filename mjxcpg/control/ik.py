@@ -11,15 +11,10 @@ the foot backward, a positive knee flexes it, and zero everywhere is a straight 
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 
-
-class LegGeometry(NamedTuple):
-    thigh: float = 0.12
-    shin: float = 0.12
+from mjxcpg.robots.description import LegGeometry
 
 
 def leg_joint_angles(x: jax.Array, z: jax.Array, geometry: LegGeometry = LegGeometry()) -> jax.Array:
