@@ -16,13 +16,11 @@ the same walk.
 import argparse
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import walk
-from mjxcpg.learning.learner import policy_mean_feedback
-from mjxcpg.training import runs, stats
+from mjxcpg.training import report, runs, stats
 
 
 def main() -> None:
@@ -33,14 +31,14 @@ def main() -> None:
     spec, sim, task, state = runs.load_run(args.run)
     chosen = runs.check_learners(spec, args.learners)
     hand_seconds = sum(spec.trial.hand_seconds) / 2  # the middle of the trials' hand-over window
-    weights = jax.tree.map(lambda w: w[jnp.asarray(chosen)], state.learners.weights)
     k_s = np.array([spec.k_s[i] for i in chosen])
     for label, start in (("from standing", 0.0), (f"after {hand_seconds:g} s of the hand-designed feedback",
                                                  hand_seconds)):
-        trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, 20.0, hand_seconds=start)
-        gaits = walk.summarise(trace, sim.control_dt)
-        v = np.array([g.mean_vx for g in gaits])
-        fell = np.array([g.fell for g in gaits])
+        # The whole batch walks, as for the run's summary, whose from-standing figures this repeats.
+        walked = report.final_policy_gaits(sim, task, state, hand_seconds=start)
+        gaits = [walked[i] for i in chosen]
+        v = np.array([g["mean_vx"] for g in gaits])
+        fell = np.array([g["fell"] for g in gaits])
         groups = sorted(set(k_s))
         means = {k: stats.mean_interval(v[k_s == k]) for k in groups}
         print(f"\n{label}\n\n| k_s | learners | fell | 20 s velocity (m/s) |\n|---|---|---|---|")

@@ -20,12 +20,14 @@ PAPER_TABLE1 = {0.0: (4, 1, 2385), 1.0: (3, 3, 528), 2.0: (3, 3, 195), 3.0: (4, 
                 4.0: (3, 2, 192), 5.0: (5, 2, 1011), 10.0: (5, 5, 95)}
 
 
-def final_policy_gaits(sim, task, state: train.RunState, seconds: float = 20.0) -> list[dict]:
+def final_policy_gaits(sim, task, state: train.RunState, seconds: float = 20.0,
+                       hand_seconds: float = 0.0) -> list[dict]:
     """Every learner's final policy (mean, no noise; a control's own feedback) walks
-    ``seconds``, all in one batch."""
+    ``seconds``, all in one batch: from standing, or after ``hand_seconds`` of the
+    hand-designed feedback, as a learning trial starts."""
     # On one device: this walk, unlike the learning, is not bit-stable under sharding.
     trace = walk.walk_from_standing(sim, actor_feedback(task), jax.device_get(state.learners.weights),
-                                    seconds)
+                                    seconds, hand_seconds=hand_seconds)
     return [g.as_dict() for g in walk.summarise(trace, sim.control_dt)]
 
 
