@@ -67,6 +67,13 @@ def hand_feedback(params: ControllerParams, obs: Observation) -> jax.Array:
     return roll_rate_feedback(obs, params.hand_gain)
 
 
+def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, step: jax.Array,
+                     hand_steps: int) -> jax.Array:
+    """``a5`` in a walk that starts as a learning trial does: the hand-designed feedback for
+    the first ``hand_steps`` control periods (``step`` counts them from 0), ``a5`` after."""
+    return jnp.where(step < hand_steps, hand_feedback(params, obs), a5) if hand_steps else a5
+
+
 def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array) -> jax.Array:
     """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,)."""
     targets = cpg.leg_targets(q, params.x0, params.z0, params.amp_x, params.amp_z)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import cpg
-from mjxcpg.control.controller import ControllerParams, control_step, hand_feedback
+from mjxcpg.control.controller import ControllerParams, after_hand_start, control_step
 from mjxcpg.jaxutil import xla
 from mjxcpg.physics.engines import Engine
 from mjxcpg.physics.model import Layout, Observation, observe
@@ -51,9 +51,7 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
     """
     def one_robot_control(cpg_state, sensors, fb_params, step):
         obs = observe(layout, sensors)
-        a5 = feedback(obs, fb_params)
-        if hand_steps:
-            a5 = jnp.where(step < hand_steps, hand_feedback(params, obs), a5)
+        a5 = after_hand_start(params, obs, feedback(obs, fb_params), step, hand_steps)
         cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
         return cpg_state, ctrl, obs, a5
 

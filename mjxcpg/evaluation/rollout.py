@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import mujoco
 
 from mjxcpg.control import cpg, ik
-from mjxcpg.control.controller import control_step, hand_feedback, joint_targets
+from mjxcpg.control.controller import after_hand_start, control_step, joint_targets
 from mjxcpg.control.sim import Simulation
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.evaluation.protocol import EvalParams, Probe, Protocol, advance_probe, init_probe, probe_drive, probe_finished
@@ -135,9 +135,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
             position=log.position.at[slot].set(jnp.where(write, obs.forward_position, log.position[slot])))
         probe = advance_probe(protocol, probe, t, touchdown, index)
         offset, force = probe_drive(protocol, probe, t)
-        a5 = feedback(obs, weights)
-        if protocol.hand_steps:
-            a5 = jnp.where(t < protocol.hand_steps, hand_feedback(task.controller, obs), a5)
+        a5 = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)
         cpg_state, _ = control_step(task.controller, layout, cpg_state, obs, a5)
         ctrl = perturbed_targets(task, cpg.output(cpg_state), offset)
         return cpg_state, ctrl, force, fell, unloaded, log, probe
