@@ -12,7 +12,7 @@ from mjxcpg.evaluation import report as evaluation_report
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.training import report as run_report
 from mjxcpg.training import runs, train
-from mjxcpg.training.config import load_spec, spec_to_dict, validate
+from mjxcpg.training.config import load_spec, validate
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec
 
@@ -49,7 +49,7 @@ def finished_summary(out: Path, spec: RunSpec) -> dict:
     """A resumed run that had already finished: its results as they are, ``wall_s`` 0
     (``make run`` a second time reprints Table 1 and exits 0)."""
     saved, _ = runs.read_config(out)
-    if spec_to_dict(saved) != spec_to_dict(spec):
+    if saved != spec:
         raise runs.RunError(f"{out} holds a finished run of another config; use a new --out")
     runs.notice(f"{out} holds a finished run; its results are kept as they are")
     return json.loads((out / "summary.json").read_text()) | {"wall_s": 0.0}
