@@ -26,25 +26,24 @@ def test_layers_are_kept():
     assert "2 kept, 0 broken" in result.stdout
 
 
-def _copy_package(tmp_path: Path) -> Path:
-    shutil.copytree(PACKAGE, tmp_path / "mjxcpg", ignore=shutil.ignore_patterns("__pycache__"))
-    return tmp_path / "mjxcpg"
+def _lint_with_added(tmp_path: Path, module: str, text: str):
+    """lint-imports on a copy of the package whose ``module`` (a path in it) ends with ``text``."""
+    copy = tmp_path / "mjxcpg"
+    shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    with (copy / module).open("a") as f:
+        f.write(text)
+    return lint_imports(tmp_path)
 
 
 def test_an_upward_import_inside_a_function_is_caught(tmp_path):
-    copy = _copy_package(tmp_path)
-    with (copy / "physics" / "engines.py").open("a") as f:
-        f.write("\n\ndef _upward():\n    from mjxcpg.training import train\n    return train\n")
-    result = lint_imports(tmp_path)
+    result = _lint_with_added(tmp_path, "physics/engines.py",
+                              "\n\ndef _upward():\n    from mjxcpg.training import train\n    return train\n")
     assert result.returncode != 0
     assert "mjxcpg.physics.engines -> mjxcpg.training.train" in result.stdout
 
 
 def test_a_cycle_within_a_layer_is_caught(tmp_path):
-    copy = _copy_package(tmp_path)
-    with (copy / "control" / "cpg.py").open("a") as f:
-        f.write("\n\nfrom mjxcpg.control import controller  # noqa: E402\n")
-    result = lint_imports(tmp_path)
+    result = _lint_with_added(tmp_path, "control/cpg.py", "\n\nfrom mjxcpg.control import controller  # noqa: E402\n")
     assert result.returncode != 0
     assert "acyclic" in result.stdout.lower() or "cycle" in result.stdout.lower()
     assert "BROKEN" in result.stdout
