@@ -10,6 +10,7 @@ the robots' states, it is the only clean way to tell the learner's share.
 """
 
 import argparse
+import dataclasses
 import json
 import statistics
 import sys
@@ -34,7 +35,7 @@ class NoPhysics(engines.NativeEngine):
 
 def learner_us_per_period(batch: int, steps: int, calls: int) -> float:
     sim = make_simulation("native")
-    sim.engine = NoPhysics(sim.model, sim.engine.substeps)
+    sim = dataclasses.replace(sim, engine=NoPhysics(sim.model, sim.engine.substeps))
     spec, task = workloads.benchmark_learners(sim, batch)
     chunk = train.make_chunk(sim, task, steps)
     state, initial = train.init_run(sim, task, spec), sim.engine.init(sim.qpos0, batch)

@@ -48,3 +48,36 @@ def test_bad_generator_names_the_key(tmp_path, text, key):
     path.write_text(text)
     with pytest.raises(ValueError, match=f"^{key}"):
         config.load_spec(str(path))
+
+
+def write(tmp_path, text: str) -> str:
+    path = tmp_path / "config.toml"
+    path.write_text(text)
+    return str(path)
+
+
+def test_platform_key_starts_from_that_robots_gait_and_the_config_changes_it(tmp_path):
+    """The child's leg is twice QRIO's: lengths x 2 and times x sqrt(2) by hand, from QRIO's
+    published constants; a key of the config's own tables wins over the platform's value."""
+    spec = config.load_spec(write(tmp_path, 'platform = "child"\nk_s = [1.0]\nseeds = [0]\n'
+                                            '[controller]\nh_vsr = 0.5\n[trial]\nmax_trials = 7\n'))
+    assert spec.platform == "child"
+    assert spec.controller.z0 == pytest.approx(2 * 0.215) and spec.controller.amp_x == pytest.approx(2 * 0.015)
+    assert spec.controller.cpg.tau == pytest.approx(2 ** 0.5 * 0.105)
+    assert spec.controller.hand_gain == pytest.approx(2 ** 0.5)
+    assert spec.trial.h_ref == pytest.approx(2 * 0.272)
+    assert spec.controller.h_vsr == 0.5 and spec.trial.max_trials == 7
+    qrio = config.load_spec(write(tmp_path, 'k_s = [1.0]\nseeds = [0]\n'))
+    assert qrio.platform == "qrio" and qrio.controller.z0 == 0.215 and qrio.trial.h_ref == 0.272
+    assert config.load_spec("child").platform == "child"
+    assert config.load_spec("quick", platform="child") == config.load_spec(
+        write(tmp_path, 'platform = "child"\n' + (config.CONFIG_DIR / "quick.toml").read_text()))
+
+
+@pytest.mark.parametrize("text, message", [
+    ('platform = "atlas"\nk_s = [1.0]\nseeds = [0]\n', "platform: unknown 'atlas'; choose one of qrio, child"),
+    ('platform = 3\nk_s = [1.0]\nseeds = [0]\n', "platform"),
+])
+def test_bad_platform_is_a_one_line_error_naming_the_key(tmp_path, text, message):
+    with pytest.raises(ValueError, match=f"^{message}"):
+        config.load_spec(write(tmp_path, text))

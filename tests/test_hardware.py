@@ -167,7 +167,7 @@ def _estimated_walk(robot: str, seconds: float = 10.0):
         obs = observe(sim.layout, sensors)
         est, measured = estimator.estimate(params, est, sensors, obs, dt)
         cpg_state, ctrl = control_step(sim.params, sim.layout, cpg_state, obs, hand_feedback(sim.params, obs))
-        return cpg_state, ctrl, est, (measured, obs.height, obs.forward_velocity, walk.has_fallen(obs))
+        return cpg_state, ctrl, est, (measured, obs.height, obs.forward_velocity, walk.has_fallen(sim.layout, obs))
 
     def body(carry, _):
         physics, cpg_state, est = carry

@@ -86,23 +86,33 @@ def test_torn_latest_checkpoint_falls_back_and_ends_as_uninterrupted(finished_qu
     assert_same_results(run, finished_quick)
 
 
+def fingerprint_by_hand(data: dict) -> np.ndarray:
+    return np.frombuffer(hashlib.sha256(json.dumps(data, sort_keys=True).encode()).digest(), np.uint8)
+
+
 def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, tmp_path):
-    """A run whose config.json was written before ``learner.unit_slope`` existed (the key
-    absent, its old behaviour False): resumed, it ends as the uninterrupted run; and a
-    checkpoint fingerprinted without the key is accepted, the fingerprint built here by hand."""
+    """A run whose config.json was written before ``learner.unit_slope`` and ``platform``
+    existed (both absent, their old behaviour False and QRIO): resumed, it ends as the
+    uninterrupted run; and checkpoints fingerprinted without the keys (both, or only the newer
+    ``platform``) are accepted, the fingerprints built here by hand."""
     run = unfinished_copy(finished_quick, tmp_path)
     record = json.loads((run / "config.json").read_text())
-    del record["spec"]["learner"]["unit_slope"]
+    del record["spec"]["learner"]["unit_slope"], record["spec"]["platform"]
     (run / "config.json").write_text(json.dumps(record))
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
     assert_same_results(run, finished_quick)
     spec = config.load_spec("quick")
-    old = config.spec_to_dict(spec)
-    del old["learner"]["unit_slope"]
-    by_hand = np.frombuffer(hashlib.sha256(json.dumps(old, sort_keys=True).encode()).digest(), np.uint8)
-    assert any(np.array_equal(by_hand, f) for f in checkpoints._accepted_fingerprints(spec))
+    before_platform = config.spec_to_dict(spec)
+    del before_platform["platform"]
+    before_both = json.loads(json.dumps(before_platform))
+    del before_both["learner"]["unit_slope"]
+    accepted = checkpoints._accepted_fingerprints(spec)
+    for old in (before_platform, before_both):
+        assert any(np.array_equal(fingerprint_by_hand(old), f) for f in accepted)
     with_slope = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, unit_slope=True))
-    assert config.earlier_spec_dicts(with_slope) == []   # earlier code could not have run it
+    assert config.earlier_spec_dicts(with_slope) == [before_platform | {
+        "learner": before_platform["learner"] | {"unit_slope": True}}]  # not before unit_slope
+    assert config.earlier_spec_dicts(dataclasses.replace(spec, platform="child")) == []
 
 
 def test_corrupted_checkpoint_is_caught_by_its_sha256(finished_quick, tmp_path):

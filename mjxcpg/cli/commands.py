@@ -21,6 +21,7 @@ def cmd_walk(args: argparse.Namespace) -> dict:
     from mjxcpg.control import walk
     from mjxcpg.control.controller import roll_rate_feedback
     from mjxcpg.control.sim import make_simulation
+    from mjxcpg.robots import DEFAULT_PLATFORM
 
     if args.checkpoint is not None:
         import jax
@@ -29,13 +30,15 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         from mjxcpg.training.runs import check_learners, load_run
 
         spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
+        if args.platform not in (None, spec.platform):
+            raise UserError(f"{args.checkpoint} was learned on {spec.platform}, not {args.platform}")
         check_learners(spec, [args.learner])
         feedback = policy_mean_feedback(task)
         fb_params = jax.tree.map(lambda w: w[args.learner:args.learner + 1], state.learners.weights)
     else:
-        sim = make_simulation(args.engine, args.slope)
+        sim = make_simulation(args.engine, args.slope, platform=args.platform or DEFAULT_PLATFORM)
         if args.controller == "in-place":
-            sim.params = dataclasses.replace(sim.params, amp_x=0.0)
+            sim = sim.rebuild(params=dataclasses.replace(sim.params, amp_x=0.0))
         gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[args.controller]
         feedback = roll_rate_feedback
         fb_params = jnp.array([gain])
@@ -55,7 +58,6 @@ def _learn_or_sweep(spec, args, out: Path) -> dict:
 
 
 def cmd_learn(args: argparse.Namespace) -> dict:
-    from mjxcpg.learning.learner import TrialParams
     from mjxcpg.training.config import validate
     from mjxcpg.training.files import write_text_atomic
     from mjxcpg.training.runs import locked
@@ -67,8 +69,9 @@ def cmd_learn(args: argparse.Namespace) -> dict:
         raise UserError("--robot and --reward need --from: learning from scratch runs on the nominal robot")
     args.k_s = 10.0 if args.k_s is None else args.k_s
     args.seed = 0 if args.seed is None else args.seed
-    spec = validate(RunSpec(k_s=(args.k_s,), seeds=(args.seed,),
-                            trial=TrialParams(max_trials=1000 if args.trials is None else args.trials)))
+    defaults = RunSpec.platform_defaults(args.platform)
+    trial = dataclasses.replace(defaults["trial"], max_trials=1000 if args.trials is None else args.trials)
+    spec = validate(RunSpec(**(defaults | {"k_s": (args.k_s,), "seeds": (args.seed,), "trial": trial})))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
     summary = _learn_or_sweep(spec, args, out)
     learn_path = out / "learn.json"
@@ -122,7 +125,7 @@ def cmd_render(args: argparse.Namespace) -> dict:
 def cmd_sweep(args: argparse.Namespace) -> dict:
     from mjxcpg.training.config import load_spec
 
-    spec = load_spec(args.config)
+    spec = load_spec(args.config, platform=args.platform)
     out = Path(args.out or f"runs/{Path(args.config).stem}")
     summary = _learn_or_sweep(spec, args, out)
     print((out / "table1.md").read_text())

@@ -33,6 +33,7 @@ def _number(rule: checks.Range) -> Callable[[str], int | float]:
 
 def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.control.sim import ROBOTS
+    from mjxcpg.robots import DEFAULT_PLATFORM, PLATFORMS
     from mjxcpg.evaluation.protocol import EvalParams
     from mjxcpg.evaluation.registry import EVALUATIONS
     from mjxcpg.physics.engines import ENGINES
@@ -58,6 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
     walk.add_argument("--seconds", type=seconds, default=20.0)
     walk.add_argument("--slope", type=slope, default=0.0, help="floor slope in degrees (uphill > 0)")
+    walk.add_argument("--platform", choices=tuple(PLATFORMS), default=None,
+                      help="the robot (default qrio); with --checkpoint, the run's")
     walk.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     walk.set_defaults(handler=cmd_walk)
 
@@ -86,12 +89,16 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,
                        help="with --from: reward from the robot's sensors (default on hardware) "
                             "or the simulator's state (default on nominal)")
+    learn.add_argument("--platform", choices=tuple(PLATFORMS), default=DEFAULT_PLATFORM,
+                       help="the robot that learns from scratch (default qrio)")
     run_options(learn)
     learn.set_defaults(handler=cmd_learn)
 
     sweep = sub.add_parser("sweep", help="many learners in lockstep (the paper's Table 1)")
     sweep.add_argument("--config", default="paper",
                        help=f"a config that ships with mjxcpg ({', '.join(config_names())}) or a .toml/.json path")
+    sweep.add_argument("--platform", choices=tuple(PLATFORMS), default=None,
+                       help="the robot, in place of the config's platform key (default qrio)")
     run_options(sweep)
     sweep.set_defaults(handler=cmd_sweep)
 

@@ -20,7 +20,7 @@ from mjxcpg.robots.qrio import QRIO
 @dataclasses.dataclass(frozen=True)
 class ControllerParams:
     """Controller constants.  CPG amplitudes and reflex gains are the paper's; the defaults of
-    the robot-specific ones (time constants, A_x, A_z, Z_0) are QRIO's gait (``of``).
+    the robot-specific ones (time constants, A_x, A_z, Z_0, K) are QRIO's gait (``of``).
 
     ``vsr_sign`` fixes the sign convention of theta_roll in eq (9), which the paper does not
     print: +1 uses the right-handed roll about the forward axis (left side up is positive).
@@ -36,14 +36,15 @@ class ControllerParams:
     vsr_sign: float = -1.0
     control_dt: float = 0.008       # control period (s)
     cpg_substeps: int = 8           # Euler steps of the CPG per control period
-    hand_gain: float = 1.0          # K of the hand-designed a_5 = K d(theta_roll)/dt
+    hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
 
     @classmethod
     def of(cls, robot: RobotDescription, **overrides) -> "ControllerParams":
         """The default controller with ``robot``'s gait constants (``RobotDescription.gait``)."""
         gait = robot.gait
         cpg_params = dataclasses.replace(cpg.CPGParams(), tau=gait.tau, tau_adapt=gait.tau_adapt)
-        return cls(**{"cpg": cpg_params, "amp_x": gait.amp_x, "amp_z": gait.amp_z, "z0": gait.z0, **overrides})
+        return cls(**{"cpg": cpg_params, "amp_x": gait.amp_x, "amp_z": gait.amp_z, "z0": gait.z0,
+                      "hand_gain": gait.hand_gain, **overrides})
 
 
 def reflex_feedback(params: ControllerParams, layout: Layout, obs: Observation) -> jax.Array:

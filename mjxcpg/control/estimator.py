@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxcpg.control.walk import FALL_HEIGHT, FALL_UPRIGHTNESS
+from mjxcpg.control.walk import FALL_UPRIGHTNESS
 from mjxcpg.physics.model import Observation, Sensors
 from mjxcpg.robots.description import LegNames, RobotDescription
 from mjxcpg.robots.qrio import QRIO
@@ -89,6 +89,7 @@ class EstimatorParams:
     gyro: int                      # sensordata address of the pelvis gyro
     left_force: int                # sensordata addresses of the sole force sensors
     right_force: int
+    fall_height: float             # pelvis height (m) below which the robot has fallen
     tilt_leak_s: float = 1.0       # leak of the integrated gyro toward level (s)
     height_filter_s: float = 0.05  # low-pass of the stance-leg height (s)
     stance_margin_n: float = 5.0   # the other sole must read this much more to become the stance
@@ -100,7 +101,7 @@ class EstimatorParams:
 
         return cls(left=LegChain.of(model, robot.left), right=LegChain.of(model, robot.right),
                    gyro=sensor(robot.gyro), left_force=sensor(robot.left.force),
-                   right_force=sensor(robot.right.force), **filters)
+                   right_force=sensor(robot.right.force), fall_height=robot.gait.fall_height, **filters)
 
 
 class EstimatorState(NamedTuple):
@@ -190,7 +191,7 @@ def estimate(params: EstimatorParams, state: EstimatorState, sensors: Sensors, o
     height = state.height + (dt / params.height_filter_s) * (-stance[2] - state.height)
     upright = jnp.cos(obs.roll) * jnp.cos(obs.pitch)
     finite = jnp.isfinite(height) & jnp.isfinite(forward_velocity) & jnp.isfinite(upright)
-    fallen = ~finite | (height < FALL_HEIGHT) | (upright < FALL_UPRIGHTNESS)
+    fallen = ~finite | (height < params.fall_height) | (upright < FALL_UPRIGHTNESS)
     new_state = EstimatorState(tilt=tilt, soles=soles, height=height, stance_right=stance_right,
                                has_previous=jnp.bool_(True))
     return new_state, Estimate(height=height, forward_velocity=forward_velocity, fallen=fallen,

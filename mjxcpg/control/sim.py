@@ -1,4 +1,4 @@
-"""A robot, its controller constants and an engine, assembled once."""
+"""A robot, its controller constants and an engine, assembled once, with the record of how."""
 
 from __future__ import annotations
 
@@ -8,57 +8,93 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mjxcpg import robots
 from mjxcpg.control import ik
 from mjxcpg.control.controller import ControllerParams
 from mjxcpg.physics import engines, hardware
 from mjxcpg.physics.model import Layout, load_model
-from mjxcpg.robots.description import RobotDescription
-from mjxcpg.robots.qrio import QRIO
 
 ROBOTS = ("nominal", "hardware")  # the simulated robot; see mjxcpg.physics.hardware
+HARDWARE_PLATFORM = "qrio"         # the platform whose hardware mismatch mjxcpg.physics.hardware models
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
+class SimulationSpec:
+    """How a simulation is built, every choice resolved (``Simulation.spec``)."""
+
+    engine: str                   # one of engines.ENGINES
+    platform: str                 # one of mjxcpg.robots.PLATFORMS
+    slope_deg: float              # floor slope, uphill along +x positive
+    physics_dt: float             # physics time step (s)
+    robot: str                    # one of ROBOTS: the nominal robot or its hardware stand-in
+    params: ControllerParams      # the controller's constants: their one home in a simulation
+
+
+@dataclasses.dataclass(frozen=True)
 class Simulation:
+    spec: SimulationSpec
     model: mujoco.MjModel
     layout: Layout
-    params: ControllerParams
     engine: engines.Engine
     qpos0: np.ndarray
 
     @property
+    def params(self) -> ControllerParams:
+        return self.spec.params
+
+    @property
     def control_dt(self) -> float:
-        return self.params.control_dt
+        return self.spec.params.control_dt
+
+    def rebuild(self, **changes) -> Simulation:
+        """The simulation built as this one with the fields of ``SimulationSpec`` in ``changes``
+        changed (for example ``rebuild(slope_deg=5.0)``)."""
+        return build_simulation(dataclasses.replace(self.spec, **changes))
 
 
 def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
                     params: ControllerParams | None = None,
                     physics_dt: float | None = None, robot: str = "nominal",
-                    description: RobotDescription = QRIO) -> Simulation:
-    """Load the model of ``description``, check the control period against the physics step,
-    build the engine.
+                    platform: str = robots.DEFAULT_PLATFORM) -> Simulation:
+    """The simulation of ``platform`` on ``engine`` (default: ``engines.default_engine()``),
+    with the platform's default controller unless ``params`` are given and the model's time
+    step unless ``physics_dt`` is.
 
     ``robot="hardware"`` simulates the perturbed robot of ``mjxcpg.physics.hardware`` (its model,
     latency and sensor noise); the layout, hence the controller, stays the nominal one's.
     """
+    description = robots.platform(platform)
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; choose one of {', '.join(ROBOTS)}")
-    params = params or ControllerParams()
-    model = load_model(slope_deg, timestep=physics_dt, robot=description)
-    substeps = params.control_dt / model.opt.timestep
+    model_dt = load_model(robot=description).opt.timestep if physics_dt is None else physics_dt
+    return build_simulation(SimulationSpec(
+        engine=engine or engines.default_engine(), platform=platform, slope_deg=float(slope_deg),
+        physics_dt=float(model_dt), robot=robot, params=params or ControllerParams.of(description)))
+
+
+def build_simulation(spec: SimulationSpec) -> Simulation:
+    """Load the platform's model, check the control period against the physics step, build
+    the engine."""
+    description = robots.platform(spec.platform)
+    model = load_model(spec.slope_deg, timestep=spec.physics_dt, robot=description)
+    substeps = spec.params.control_dt / model.opt.timestep
     if substeps < 1 or abs(substeps - round(substeps)) > 1e-6:
-        raise ValueError(f"control period {params.control_dt} s is not a whole number of "
+        raise ValueError(f"control period {spec.params.control_dt} s is not a whole number of "
                          f"physics steps of {model.opt.timestep} s")
     layout = Layout.of(model, description)
-    qpos0 = standing_qpos(model, layout, params.x0, params.z0)
-    name = engine or engines.default_engine()
-    if robot == "hardware":
+    qpos0 = standing_qpos(model, layout, spec.params.x0, spec.params.z0)
+    if spec.robot == "hardware":
+        if spec.platform != HARDWARE_PLATFORM:
+            raise ValueError(f"the hardware robot is a perturbed {HARDWARE_PLATFORM} (docs/hardware.md); "
+                             f"{spec.platform} has none")
         model = hardware.perturbed_model(model)
         physics_engine = hardware.HardwareEngine(
-            engines.make_engine(name, model, round(substeps), description.pelvis), robot=description)
+            engines.make_engine(spec.engine, model, round(substeps), description.pelvis), robot=description)
+    elif spec.robot == "nominal":
+        physics_engine = engines.make_engine(spec.engine, model, round(substeps), description.pelvis)
     else:
-        physics_engine = engines.make_engine(name, model, round(substeps), description.pelvis)
-    return Simulation(model=model, layout=layout, params=params, engine=physics_engine, qpos0=qpos0)
+        raise ValueError(f"unknown robot {spec.robot!r}; choose one of {', '.join(ROBOTS)}")
+    return Simulation(spec=spec, model=model, layout=layout, engine=physics_engine, qpos0=qpos0)
 
 
 def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: float) -> np.ndarray:

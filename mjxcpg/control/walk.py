@@ -17,14 +17,14 @@ from mjxcpg.physics.engines import Engine
 from mjxcpg.physics.model import Layout, Observation, observe
 
 FeedbackFn = Callable[[Observation, jax.Array], jax.Array]  # (obs, params) -> a5
-FALL_HEIGHT = 0.20        # pelvis height (m) below which the robot has fallen (walking: 0.28)
 FALL_UPRIGHTNESS = 0.5    # cos of 60 degrees of pelvis tilt
 
 
-def has_fallen(obs: Observation) -> jax.Array:
-    """A fall is the body on the ground: pelvis low or tilted, or the physics diverged."""
+def has_fallen(layout: Layout, obs: Observation) -> jax.Array:
+    """A fall is the body on the ground: pelvis below the robot's fall height
+    (``Layout.fall_height``) or tilted, or the physics diverged."""
     finite = jnp.isfinite(obs.height) & jnp.isfinite(obs.uprightness) & jnp.all(jnp.isfinite(obs.gyro))
-    return ~finite | (obs.height < FALL_HEIGHT) | (obs.uprightness < FALL_UPRIGHTNESS)
+    return ~finite | (obs.height < layout.fall_height) | (obs.uprightness < FALL_UPRIGHTNESS)
 
 
 class Trace(NamedTuple):
@@ -60,7 +60,7 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
         sensors = engine.sensors(physics)
         cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control, (0, 0, 0, None))(cpg_state, sensors, fb_params,
                                                                                  step)
-        fallen = fallen | jax.vmap(has_fallen)(obs)
+        fallen = fallen | jax.vmap(lambda o: has_fallen(layout, o))(obs)
         physics = engine.step(physics, ctrl)
         trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
                       obs.roll, a5, fallen, sensors.qpos if record_qpos else None)

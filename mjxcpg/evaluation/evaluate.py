@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg.control.sim import Simulation, make_simulation
+from mjxcpg.control.sim import Simulation
 from mjxcpg.evaluation.protocol import PUSH_DIRECTIONS, EvalParams, Protocol, make_protocol
 from mjxcpg.evaluation.rollout import EvalState, TouchdownLog, learner_keys, make_runner
 from mjxcpg.learning.learner import Task
@@ -128,8 +128,7 @@ def evaluate_slopes(run_sim: Simulation, task: Task, weights: Any, learners: Seq
             slope = direction * degrees
             if not walking.any():
                 break
-            sim = make_simulation(engine or run_sim.engine.name, float(slope), params=run_sim.params,
-                                  physics_dt=run_sim.model.opt.timestep, robot=robot)
+            sim = run_sim.rebuild(engine=engine or run_sim.engine.name, slope_deg=float(slope), robot=robot)
             protocol = make_protocol("steady", params, sim.layout, sim.control_dt)
             state = make_runner(sim, task, protocol, params)(weights, keys, skipped=jnp.asarray(~walking))
             rows = []

@@ -24,6 +24,8 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
+from mjxcpg import robots
+from mjxcpg.robots.description import RobotDescription
 from mjxcpg.robots.qrio import QRIO
 
 
@@ -49,11 +51,16 @@ class View:
 
     width: int = 240
     height: int = 320
-    distance: float = 1.0     # m
+    distance: float = 1.0     # m, for QRIO's 0.24 m leg; scaled with the robot's (``for_robot``)
     azimuth: float = 90.0     # degrees; 90 looks along -y at the robot's left side
     elevation: float = -10.0  # degrees
     headlight: float = 0.6    # ambient and diffuse intensity of the camera's headlight
     tracked_body: str = QRIO.pelvis
+
+    def for_robot(self, robot: RobotDescription) -> "View":
+        """This view of ``robot``: the camera as far from it, in leg lengths, as from QRIO."""
+        return dataclasses.replace(self, distance=self.distance * robot.leg_length / QRIO.leg_length,
+                                   tracked_body=robot.pelvis)
 
 
 @dataclasses.dataclass
@@ -66,6 +73,7 @@ class Gait:
     fell: bool
     seconds: float            # simulated time before a fall (or the whole walk)
     mean_vx: float
+    robot: RobotDescription   # the platform that walked
 
 
 def record_gait(run_dir: Path, learner: int, seconds: float, engine: str | None = None,
@@ -83,7 +91,8 @@ def record_gait(run_dir: Path, learner: int, seconds: float, engine: str | None 
     trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, seconds, record_qpos=True)
     summary = walk.summarise(trace, sim.control_dt)[0]
     return Gait(model=sim.model, qpos=np.asarray(trace.qpos[0], np.float64), dt=sim.control_dt,
-                fell=summary.fell, seconds=summary.seconds, mean_vx=summary.mean_vx)
+                fell=summary.fell, seconds=summary.seconds, mean_vx=summary.mean_vx,
+                robot=robots.platform(spec.platform))
 
 
 def open_renderer(model, width: int, height: int):
@@ -203,6 +212,7 @@ def render_gait(run_dir: Path, learner: int, out: Path, seconds: float = 10.0, s
     video_steps = snapshot_steps(0.0, seconds, video_frame_s, gait.dt, steps)
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"gait_learner{learner:02d}_{robot}"
+    view = view.for_robot(gait.robot)
     filmstrip(render_frames(gait.model, gait.qpos[strip_steps], view),
               strip_steps * gait.dt).save(stem.with_suffix(".png"))
     video = render_frames(gait.model, gait.qpos[video_steps], view)

@@ -118,7 +118,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
 
     def one_robot(t, cpg_state, sensors, weights, unloaded, log, probe, active):
         obs = observe(layout, sensors)
-        fell = has_fallen(obs)
+        fell = has_fallen(layout, obs)
         # Left touchdown: the sole loaded again after a long enough unloaded spell.
         touchdown = active & ~fell & (obs.force_left >= protocol.touchdown_force) & (
             unloaded >= protocol.min_airborne_steps)

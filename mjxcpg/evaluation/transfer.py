@@ -19,7 +19,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import walk
-from mjxcpg.control.sim import make_simulation
 from mjxcpg.learning.learner import policy_mean_feedback
 from mjxcpg.physics import hardware
 from mjxcpg.training import report, runs
@@ -33,7 +32,7 @@ def walk_on_engines(run_dir: Path, seconds: float = 20.0) -> dict:
     _, _, task, state = runs.load_run(run_dir)
     gaits = {}
     for engine in ENGINES:
-        sim = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
+        sim = spec.simulation(engine)
         gaits[engine] = report.final_policy_gaits(sim, task, state, seconds)
     summary = json.loads((run_dir / "summary.json").read_text())["learners"]
     rows = []

@@ -185,7 +185,7 @@ def measured_inputs(task: Task, state: LearnerState, sensors: Sensors, obs: Obse
     """(height, forward velocity, fell, estimator state) for the reward and the fall test:
     the ground truth, or the estimator's reading of the sensors when ``task.estimator`` is set."""
     if task.estimator is None:
-        return obs.height, obs.forward_velocity, has_fallen(obs), state.estimate
+        return obs.height, obs.forward_velocity, has_fallen(task.layout, obs), state.estimate
     estimate_state, measured = estimator.estimate(task.estimator, state.estimate, sensors, obs, task.dt)
     return measured.height, measured.forward_velocity, measured.fallen, estimate_state
 

@@ -58,6 +58,7 @@ class Layout:
     slope_tan: float
     geometry: LegGeometry
     hip_to_sole: tuple[float, float]  # pelvis centre to hip, ankle to sole bottom (m)
+    fall_height: float                # pelvis height (m) below which the robot has fallen
 
     @classmethod
     def of(cls, model: mujoco.MjModel, robot: RobotDescription = QRIO) -> "Layout":
@@ -89,6 +90,7 @@ class Layout:
             slope_tan=float(-2 * w * y / (w * w - y * y)) if w * w != y * y else 0.0,
             geometry=LegGeometry(thigh=body_offset(left.shin), shin=body_offset(left.ankle)),
             hip_to_sole=(body_offset(left.hip), ankle_to_sole),
+            fall_height=robot.gait.fall_height,
         )
 
     def pelvis_height(self, leg_length: float) -> float:

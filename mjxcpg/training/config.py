@@ -14,6 +14,10 @@ the count the sequence is repeated (and cut) to.  "10 seeds per k_s from seed 10
     k_s_values = [0.0, 1.0, 2.0]
     seeds_per_k_s = 10
     first_seed = 100
+
+A config that names a ``platform`` (a robot of ``mjxcpg.robots.PLATFORMS``; default QRIO)
+starts from that robot's controller and reward height (``RunSpec.for_platform``); its own
+``[controller]`` and ``[trial]`` keys change those.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from mjxcpg import robots
 from mjxcpg.learning.learner import ACTORS
 from mjxcpg.training import checks
 from mjxcpg.training.checks import COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, SEED, Range
@@ -38,12 +43,12 @@ from mjxcpg.training.train import RunSpec
 CONFIG_DIR = importlib.resources.files("mjxcpg") / "configs"
 
 
-def _check(value: Any, annotation: Any, key: str) -> Any:
+def _check(value: Any, annotation: Any, key: str, base: Any = None) -> Any:
     origin = typing.get_origin(annotation)
     if dataclasses.is_dataclass(annotation):
         if not isinstance(value, dict):
             raise ValueError(f"{key}: expected a table, got {type(value).__name__}")
-        return from_dict(annotation, value, key)
+        return from_dict(annotation, value, key, base)
     if origin in (typing.Union, types.UnionType):
         options = typing.get_args(annotation)
         if value is None and type(None) in options:
@@ -70,20 +75,26 @@ def _check(value: Any, annotation: Any, key: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"{key}: expected an integer, got {value!r}")
         return value
+    if annotation is str and not isinstance(value, str):
+        raise ValueError(f"{key}: expected a string, got {value!r}")
     return value
 
 
-def from_dict(cls: type, data: dict, prefix: str = "") -> Any:
-    """Build dataclass ``cls`` from ``data``, checking every key and type."""
+def from_dict(cls: type, data: dict, prefix: str = "", base: Any = None) -> Any:
+    """Build dataclass ``cls`` from ``data``, checking every key and type.  A key ``data``
+    leaves out takes its value from ``base`` (an instance of ``cls``, or a dict of some of
+    its fields), else the field's default; a table ``data`` gives changes ``base``'s value."""
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
+    defaults = {} if base is None else base if isinstance(base, dict) else {
+        name: getattr(base, name) for name in fields}
     kwargs = {}
     for key, value in data.items():
         name = f"{prefix}.{key}" if prefix else key
         if key not in fields:
             raise ValueError(f"unknown key {name!r}")
-        kwargs[key] = _check(value, hints[key], name)
-    return cls(**kwargs)
+        kwargs[key] = _check(value, hints[key], name, defaults.get(key))
+    return cls(**(defaults | kwargs))
 
 
 # The range of each number of a spec by its key (list entries share their list's key); a
@@ -202,8 +213,9 @@ def config_names() -> list[str]:
     return sorted(p.name.removesuffix(".toml") for p in CONFIG_DIR.iterdir() if p.name.endswith(".toml"))
 
 
-def load_spec(name_or_path: str) -> RunSpec:
-    """A config by name (one of ``config_names()``) or by path (.toml or .json)."""
+def load_spec(name_or_path: str, platform: str | None = None) -> RunSpec:
+    """A config by name (one of ``config_names()``) or by path (.toml or .json); ``platform``
+    in place of the config's own."""
     path = Path(name_or_path)
     source = CONFIG_DIR / f"{name_or_path}.toml" if not path.suffix else path
     if not source.is_file():
@@ -214,27 +226,43 @@ def load_spec(name_or_path: str) -> RunSpec:
         data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f"{name_or_path}: not valid {suffix[1:].upper()}: {error}") from None
-    return validate(from_dict(RunSpec, expand_learners(data)))
+    return spec_from_config(expand_learners(data | ({} if platform is None else {"platform": platform})))
+
+
+def spec_from_config(data: dict) -> RunSpec:
+    """The spec of a config's (expanded) table: its platform's defaults, changed by ``data``."""
+    platform = _check(data.get("platform", robots.DEFAULT_PLATFORM), str, "platform")
+    if platform not in robots.PLATFORMS:
+        raise ValueError(f"platform: unknown {platform!r}; choose one of {', '.join(robots.PLATFORMS)}")
+    return validate(from_dict(RunSpec, data, base=RunSpec.platform_defaults(platform)))
 
 
 def spec_to_dict(spec: RunSpec) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(spec)))
 
 
-# Keys added to the spec after runs had been recorded, each with the value that a run
-# recorded without it had: such a run's record is the spec without these keys.
-ADDED_KEYS = {("learner", "unit_slope"): False}
+# Keys added to the spec after runs had been recorded (each by its path of keys), in the
+# order they were added, with the value that a run recorded without it had: such a run's
+# record is the spec without that key and every later one.
+ADDED_KEYS = {("learner", "unit_slope"): False, ("platform",): robots.DEFAULT_PLATFORM}
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
-    """``spec`` as code from before ``ADDED_KEYS`` recorded it, if it could have (every
-    added key at its old value); empty otherwise."""
-    data = spec_to_dict(spec)
-    if any(data[section][key] != value for (section, key), value in ADDED_KEYS.items()):
-        return []
-    for section, key in ADDED_KEYS:
-        del data[section][key]
-    return [data]
+    """``spec`` as each earlier version of the code recorded it, newest first, as far back
+    as it could have recorded it (every key added since at its old value)."""
+    added = list(ADDED_KEYS.items())
+    earlier = []
+    for first_missing in reversed(range(len(added))):
+        data = spec_to_dict(spec)
+        for path, value in added[first_missing:]:
+            table = data
+            for key in path[:-1]:
+                table = table[key]
+            if table[path[-1]] != value:
+                return earlier
+            del table[path[-1]]
+        earlier.append(data)
+    return earlier
 
 
 def spec_from_dict(data: dict) -> RunSpec:

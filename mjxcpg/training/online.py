@@ -26,7 +26,6 @@ import jax
 import jax.numpy as jnp
 
 from mjxcpg.control.estimator import EstimatorParams
-from mjxcpg.control.sim import make_simulation
 from mjxcpg.learning.learner import init_learner
 from mjxcpg.training import checkpoints, config, plots, provenance, report, runs, train
 
@@ -107,7 +106,7 @@ def _write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunStat
 
     The checkpoint holds the learners (without the estimator's state, which a simulation run
     has not) and the nominal robot standing, the layout every run directory's physics has."""
-    nominal = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
+    nominal = spec.simulation(engine)
     saved = train.RunState(physics=nominal.engine.init(nominal.qpos0, spec.batch),
                            learners=jax.tree.map(jnp.asarray, state.learners._replace(estimate=None)))
     record = {"spec": config.spec_to_dict(spec), "engine": engine, "code": provenance.code_identity(),

@@ -39,7 +39,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjxcpg.control.sim import Simulation, make_simulation
+from mjxcpg.control.sim import Simulation
 from mjxcpg.training import config, events, provenance, train
 from mjxcpg.training.checkpoints import (RunError, damage_text, manager_of, restore_state, save_next, set_aside,
                                          written)
@@ -149,7 +149,7 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
             raise RunError(f"{out} is not a run directory (no config.json); nothing to resume")
         else:
             raise RunError(f"{out} exists; pass --resume to continue it or --force to replace it")
-    sim = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
+    sim = spec.simulation(engine)
     task = train.make_task(sim, spec)
     state = train.init_run(sim, task, spec)
     out.mkdir(parents=True, exist_ok=True)
@@ -260,12 +260,11 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     """
     out = Path(out)
     spec, record = read_config(out)
-    sim = make_simulation(engine or record["engine"], slope_deg, params=spec.controller,
-                          physics_dt=spec.physics_dt, robot=robot)
+    sim = spec.simulation(engine or record["engine"], slope_deg=slope_deg, robot=robot)
     task = train.make_task(sim, spec)
     # The checkpoint holds the physics in the recorded engine's layout.
-    recorded = sim if sim.engine.name == record["engine"] and robot == "nominal" else make_simulation(
-        record["engine"], params=spec.controller, physics_dt=spec.physics_dt)
+    recorded = sim if sim.engine.name == record["engine"] and robot == "nominal" else spec.simulation(
+        record["engine"])
     with contextlib.closing(manager_of(out)) as manager:
         if not manager.all_steps():
             raise RunError(f"{out} has no checkpoint")

@@ -13,13 +13,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxcpg import robots
 from mjxcpg.control.controller import ControllerParams
 from mjxcpg.jaxutil import xla
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning import ngnet
 from mjxcpg.learning.learner import (LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step,
                             period_draws)
-from mjxcpg.control.sim import Simulation
+from mjxcpg.control.sim import Simulation, make_simulation
 
 
 class RunState(NamedTuple):
@@ -33,6 +34,9 @@ class RunSpec:
 
     k_s: tuple[float, ...]
     seeds: tuple[int, ...]
+    # The robot (mjxcpg.robots.PLATFORMS).  ``for_platform`` gives its controller and reward
+    # height; a config that names a platform starts from those (mjxcpg.training.config).
+    platform: str = robots.DEFAULT_PLATFORM
     learner: ac.LearnerParams = ac.LearnerParams()
     trial: TrialParams = TrialParams()
     controller: ControllerParams = ControllerParams()
@@ -45,9 +49,27 @@ class RunSpec:
     def batch(self) -> int:
         return len(self.k_s)
 
+    @staticmethod
+    def platform_defaults(platform: str) -> dict:
+        """The fields that depend on the robot: its controller and reward height (from its
+        gait constants, ``RobotDescription.gait``)."""
+        robot = robots.platform(platform)
+        return {"platform": platform, "controller": ControllerParams.of(robot),
+                "trial": TrialParams(h_ref=robot.gait.h_ref)}
+
+    @classmethod
+    def for_platform(cls, platform: str, **fields) -> "RunSpec":
+        """A spec of ``platform`` (``platform_defaults``) with ``fields`` given."""
+        return cls(**(cls.platform_defaults(platform) | fields))
+
+    def simulation(self, engine: str | None = None, **build) -> Simulation:
+        """This run's simulation on ``engine``; ``build``: other fields of ``make_simulation``."""
+        return make_simulation(engine, params=self.controller, physics_dt=self.physics_dt,
+                               platform=self.platform, **build)
+
 
 def make_task(sim: Simulation, spec: RunSpec) -> Task:
-    return Task(layout=sim.layout, controller=spec.controller, learner=spec.learner,
+    return Task(layout=sim.layout, controller=sim.params, learner=spec.learner,
                 trial=spec.trial, basis=ngnet.make_basis(spec.basis_grid, width_scale=spec.basis_width))
 
 
