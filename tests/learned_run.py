@@ -11,8 +11,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from mjxcpg.control.sim import make_simulation
-from mjxcpg.training import checkpoints, config, train
+from mjxcpg.training import config, runs, train
 
 STORED_POLICY = Path(__file__).resolve().parent / "data" / "learned_policy_ks10_seed1.json"
 
@@ -21,14 +20,12 @@ def make_learned_run(out: Path, engine: str = "native") -> Path:
     record = json.loads(STORED_POLICY.read_text())
     spec = config.validate(train.RunSpec(k_s=(record["k_s"],), seeds=(record["seed"],),
                                          basis_grid=record["basis_grid"], basis_width=record["basis_width"]))
-    sim = make_simulation(engine, params=spec.controller, physics_dt=spec.physics_dt)
+    sim = spec.simulation(engine)
     task = train.make_task(sim, spec)
     state = train.init_run(sim, task, spec)
     weights = state.learners.weights._replace(
         mean=jnp.asarray(record["policy_mean_weights"], jnp.float32)[None])
     book = state.learners.book._replace(trials_to_success=jnp.array([record["trials_to_success"]], jnp.int32))
     state = state._replace(learners=state.learners._replace(weights=weights, book=book))
-    out.mkdir(parents=True)
-    (out / "config.json").write_text(json.dumps({"spec": config.spec_to_dict(spec), "engine": engine}))
-    checkpoints.write_checkpoint(out, state, spec)
+    runs.write_run(out, spec, engine, state)
     return out

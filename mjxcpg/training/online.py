@@ -27,7 +27,7 @@ import jax.numpy as jnp
 
 from mjxcpg.control.estimator import EstimatorParams
 from mjxcpg.learning.learner import init_learner
-from mjxcpg.training import checkpoints, config, plots, provenance, report, runs, train
+from mjxcpg.training import config, plots, report, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 
@@ -109,7 +109,4 @@ def _write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunStat
     nominal = spec.simulation(engine)
     saved = train.RunState(physics=nominal.engine.init(nominal.qpos0, spec.batch),
                            learners=jax.tree.map(jnp.asarray, state.learners._replace(estimate=None)))
-    record = {"spec": config.spec_to_dict(spec), "engine": engine, "code": provenance.code_identity(),
-              "online": {k: summary[k] for k in ("from", "learner", "robot", "reward")}}
-    (out / "config.json").write_text(json.dumps(record, indent=1))
-    checkpoints.write_checkpoint(out, saved, spec)
+    runs.write_run(out, spec, engine, saved, online={k: summary[k] for k in ("from", "learner", "robot", "reward")})

@@ -42,7 +42,7 @@ import orbax.checkpoint as ocp
 from mjxcpg.control.sim import Simulation
 from mjxcpg.training import config, events, provenance, train
 from mjxcpg.training.checkpoints import (RunError, damage_text, manager_of, restore_state, save_next, set_aside,
-                                         written)
+                                         write_checkpoint, written)
 from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.progress import RunProgress
 
@@ -118,13 +118,27 @@ def is_finished(out: Path) -> bool:
 
 # ---------------------------------------------------------------- running
 
+def run_record(spec: train.RunSpec, engine: str | None, **extra) -> dict:
+    """What a run directory's config.json holds: the spec, the engine and the code that made
+    the run (``provenance.code_identity``), and ``extra``."""
+    return {"spec": config.spec_to_dict(spec), "engine": engine, "code": provenance.code_identity(), **extra}
+
+
+def write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunState, **extra) -> None:
+    """``out`` (new, or empty) as a run directory that ``load_run`` reads: config.json
+    (``run_record``) and ``state`` as its one checkpoint."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "config.json", json.dumps(run_record(spec, engine, **extra), indent=1))
+    write_checkpoint(out, state, spec)
+
+
 def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, force: bool,
             allow_other_code: bool = False) -> tuple:
     """Check the directory, build the simulation and the starting state (fresh or resumed).
     The caller holds ``locked(out)``."""
     config_path = out / "config.json"
-    code = provenance.code_identity()
-    record = {"spec": config.spec_to_dict(spec), "engine": engine, "code": code}
+    record = run_record(spec, engine)
+    code = record["code"]
     fresh = True
     if run_files(out):
         if resume and config_path.is_file():
