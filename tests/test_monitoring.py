@@ -1,6 +1,7 @@
 """What a run reports while it runs: TensorBoard event files (read back with TensorBoard's own
 reader) and the estimate of the time left."""
 
+import math
 from collections import Counter
 from pathlib import Path
 from typing import NamedTuple
@@ -12,7 +13,8 @@ from tensorboard.compat.proto.event_pb2 import Event
 
 from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training.events import RunEvents, read_scalars
-from mjxcpg.training.progress import expected_total_trials, remaining_seconds_simulated
+from mjxcpg.training.progress import (expected_total_trials, lindy_mean, remaining_seconds_simulated,
+                                      wall_seconds_left)
 
 
 def tensorboard_scalars(directory: Path) -> dict[str, list[tuple[int, float]]]:
@@ -95,12 +97,21 @@ def test_expected_total_trials():
     assert totals[5] == 4 + 5                        # succeeded: exact
 
 
-def test_expected_total_trials_without_longer_peers_doubles_within_the_budget():
+def test_lindy_mean_is_the_mean_of_the_capped_pareto_tail():
+    """E[min(T, B)] for P(T > x) = t / x (x >= t) is t + the integral of t / x from t to B,
+    here summed numerically."""
+    t, budget = 30.0, 100.0
+    x = np.linspace(t, budget, 200_001)
+    assert lindy_mean(t, budget) == pytest.approx(t + np.trapezoid(t / x, x), rel=1e-6)
+    assert lindy_mean(0, budget) == 0 and lindy_mean(150, budget) == budget
+
+
+def test_expected_total_trials_without_longer_peers_follows_lindys_law_within_the_budget():
     k_s, streak, tts = np.zeros(3), np.array([0, 0, 15]), np.full(3, -1)
     done = np.array([True, False, False])
     totals = expected_total_trials(TRIAL, k_s, np.array([10, 30, 70]), streak, tts, done)
-    assert totals[1] == 60                           # twice its trials so far
-    assert totals[2] == 100                          # twice 70, capped by the budget
+    assert totals[1] == pytest.approx(30 * (1 + math.log(100 / 30)) + 5)   # then the 5 after success
+    assert totals[2] == pytest.approx(70 * (1 + math.log(100 / 70)) + 5)   # 99.97, within the budget
     # never fewer than the fall-free streak (and the trials after it) still needed
     assert expected_total_trials(TRIAL, k_s[:2], np.array([3, 4]), np.array([0, 1]), tts[:2],
                                  np.array([False, False]))[1] == 4 + 19 + 5
@@ -115,8 +126,9 @@ def test_remaining_seconds_count_the_streak_at_full_length():
         streak: np.ndarray
         trials_to_success: np.ndarray
 
-    # learner 0: 10 trials of 5 s each, one still running 1 s in; 10 more expected (doubling),
-    # 20 of them needed fall-free: all 10 at 20 s.  Learner 1: succeeded at trial 8, 5 after.
+    # learner 0: 10 trials of 5 s each, one still running 1 s in; 10 more expected (Lindy's
+    # 10 (1 + ln 2) + 5 after success, capped by the 20-trial budget), 20 of them needed
+    # fall-free: all 10 at 20 s.  Learner 1: succeeded at trial 8, 5 after.
     book = Bookkeeping(trial=np.array([10, 10]), step=np.array([100, 0]), streak=np.array([0, 2]),
                        trials_to_success=np.array([-1, 8]))
     period = np.array([5100, 6000])
@@ -125,3 +137,12 @@ def test_remaining_seconds_count_the_streak_at_full_length():
                                           np.array([False, False]))
     assert seconds[0] == pytest.approx(10 * 20.0)
     assert seconds[1] == pytest.approx(3 * 6.0)      # 13 - 10 trials left at its mean 6 s
+
+
+def test_wall_seconds_left_follows_the_batch_as_it_shrinks():
+    """Three of eight learners left with 10, 20 and 40 simulated seconds: 4 rows for the first
+    10 s (three learners, padded to a power of two), then 2 rows (never one) for the rest;
+    a batch of r rows costs 1 + r wall seconds per simulated second."""
+    remaining = np.array([0, 10.0, 0, 40.0, 0, 20.0, 0, 0])
+    assert wall_seconds_left(remaining, 8, lambda rows: 1.0 + rows) == 10 * 5 + 10 * 3 + 20 * 3
+    assert wall_seconds_left(np.zeros(4), 4, lambda rows: 1.0) == 0.0

@@ -4,25 +4,40 @@ the time left, estimated from the learners' own progress rather than their trial
 How many trials a learner still needs is unknown until it meets the success criterion; after
 that its end is exact (``trials_after_success`` more).  Before it, the learner's expected
 total is the mean total of the finished learners of its k_s that have run longer than it
-has (else of any k_s); when none has, twice its trials so far (a learner that has not
-finished in t trials is taken to need about t more); never fewer than the fall-free streak
-it still needs, never more than the budget.  Its remaining trials last as long as its
-trials so far did on average, except that streak, whose trials run to full length.  The
-time left is all learners' remaining robot-steps at the robot-steps per second measured
-over the last chunks (a rate that counts only the robots still learning), from the
-session's second chunk on: the first includes compilation.
+has (else of any k_s).  When none has, the trials to success are taken as scale-free
+(Lindy's law, a Pareto tail of index 1: a learner that has not succeeded in t trials is as
+likely to need more than 2t as fewer), whose mean within a budget B is t (1 + ln(B / t));
+then the trials after success.  The times to success of this project's learners are
+heavy-tailed in just this way (a few k_s = 0 learners take ten times the others).  Never
+fewer than the fall-free streak it still needs, never more than the budget.  Its remaining
+trials last as long as its trials so far did on average, except that streak, whose trials
+run to full length.
+
+The time left follows the batch as it shrinks: learners finish in the order of their
+remaining simulated time, and each stretch runs the rows ``train.compacted_size`` gives
+the learners left.  A batch of b rows costs alpha + beta b wall seconds per simulated
+second, fitted to the chunks measured at two or more sizes; until then, beta b_now + alpha
+is taken from the chunks at the one size measured, with alpha = ``FIXED_ROWS`` beta.
+Pace is measured from the session's second chunk on: the first includes compilation.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 from tqdm import tqdm
 
 from mjxcpg.learning.learner import TrialParams
+from mjxcpg.training import train
 
-_RATE_CHUNKS = 5  # chunks whose median robot-steps/s sets the pace of the time left
+_RATE_CHUNKS = 5  # chunks whose median wall time per simulated second sets a size's pace
+# A batch step's cost that does not grow with its rows, in rows: MuJoCo C under the
+# controller and learner steps 25,500 robot-steps/s at batch 1 and 87,000 at batch 27 on a
+# 2-core CPU (bench/results/2026-11-22-cpu2.json), that is 39 and 310 us per batch step:
+# 29 us + 10.4 us per row, a fixed part of about 3 rows.
+FIXED_ROWS = 3.0
 
 
 def expected_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray, streak: np.ndarray,
@@ -36,10 +51,28 @@ def expected_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarra
         longer = done & (trials > trials[i])
         same_k_s = longer & (k_s == k_s[i])
         peers = trials[same_k_s if same_k_s.any() else longer]
-        guess = peers.mean() if peers.size else 2.0 * trials[i]
+        guess = peers.mean() if peers.size else lindy_mean(trials[i], trial.max_trials) + trial.trials_after_success
         least = trials[i] + trial.success_streak - streak[i] + trial.trials_after_success
         totals[i] = min(max(guess, least), trial.max_trials)
     return totals
+
+
+def lindy_mean(trials: float, budget: float) -> float:
+    """The mean of min(T, budget) for T with P(T > x) = trials / x beyond ``trials`` (a Pareto
+    tail of index 1): trials (1 + ln(budget / trials)); 0 before the first trial."""
+    return trials * (1.0 + np.log(budget / trials)) if 0 < trials < budget else float(min(trials, budget))
+
+
+def wall_seconds_left(remaining: np.ndarray, batch: int, cost: Callable[[int], float]) -> float:
+    """Wall seconds until every learner has simulated its ``remaining`` seconds (0 for the
+    finished), with the rows a chunk runs shrinking as learners finish
+    (``train.compacted_size``) and ``cost(rows)`` wall seconds per simulated second."""
+    levels = np.sort(remaining[remaining > 0])
+    total, previous = 0.0, 0.0
+    for k, level in enumerate(levels):
+        total += (level - previous) * cost(train.compacted_size(len(levels) - k, batch))
+        previous = level
+    return float(total)
 
 
 def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, book, period: np.ndarray,
@@ -65,7 +98,9 @@ class RunProgress:
                  enabled: bool = True):
         self.trial, self.dt, self.substeps = trial, dt, substeps
         self.k_s = np.asarray(k_s, np.float64)
-        self._rates: list[float] = []
+        self._costs: dict[int, list[float]] = {}  # rows -> wall seconds per simulated second, per chunk
+        self._chunks = 0
+        self._done = np.asarray(done)
         self._last_time, self._last_trials = time.perf_counter(), trials
         self._bar = tqdm(total=len(done), initial=int(np.sum(done)), disable=not enabled, dynamic_ncols=True,
                          bar_format="{n_fmt}/{total_fmt} learners finished |{bar}| {elapsed}{postfix}")
@@ -76,11 +111,16 @@ class RunProgress:
         trials = int(np.sum(book.trial))
         trials_per_s = (trials - self._last_trials) / max(now - self._last_time, 1e-9)
         self._last_time, self._last_trials = now, trials
-        self._rates.append(robot_steps_per_s)
+        active = int(np.sum(~self._done))
+        rows = train.compacted_size(active, len(done))
+        self._chunks += 1
         # The session's first chunk includes compilation: no pace until a chunk without it.
-        pace = float(np.median(self._rates[1:][-_RATE_CHUNKS:])) if len(self._rates) > 1 else 0.0
+        if self._chunks > 1 and robot_steps_per_s > 0:
+            self._costs.setdefault(rows, []).append(active * self.substeps / (robot_steps_per_s * self.dt))
+        self._done = np.asarray(done)
         seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done)
-        eta_s = float(np.sum(seconds) / self.dt * self.substeps / pace) if pace > 0 else None
+        cost = self._cost_model(rows)
+        eta_s = None if cost is None else wall_seconds_left(seconds, len(done), cost)
         if done.all():
             eta_s = 0.0
         measures = {"learners_finished": int(np.sum(done)), "learners_succeeded": int(np.sum(book.trials_to_success >= 0)),
@@ -91,6 +131,20 @@ class RunProgress:
             f"{trials} trials, {trials_per_s:.1f} trials/s, succeeded {measures['learners_succeeded']}, "
             f"ETA {'?' if eta_s is None else _clock(eta_s)}")
         return measures
+
+    def _cost_model(self, rows_now: int) -> Callable[[int], float] | None:
+        """Wall seconds per simulated second of a batch of ``rows``: alpha + beta rows, fitted
+        to the median cost of each size measured; from one size, with alpha = FIXED_ROWS beta."""
+        medians = {rows: float(np.median(c[-_RATE_CHUNKS:])) for rows, c in self._costs.items()}
+        if len(medians) >= 2:
+            beta, alpha = np.polyfit(list(medians), list(medians.values()), 1)
+            if beta > 0 and alpha >= 0:
+                return lambda rows: alpha + beta * rows
+        if not medians:
+            return None
+        rows_seen = rows_now if rows_now in medians else max(medians)
+        beta = medians[rows_seen] / (FIXED_ROWS + rows_seen)
+        return lambda rows: beta * (FIXED_ROWS + rows)
 
     def close(self) -> None:
         self._bar.close()

@@ -150,17 +150,25 @@ def progress_counts(task: Task, learners: LearnerState) -> dict:
     }
 
 
-def compacted_rows(done: np.ndarray) -> np.ndarray | None:
-    """The learners a chunk runs once many have finished: the unfinished ones, padded with
-    finished ones to a power of two (at least 2), or None for the whole batch.
+def compacted_size(active: int, batch: int) -> int:
+    """The rows a chunk runs with ``active`` of ``batch`` learners unfinished: the whole batch
+    until the unfinished ones fit in half of it, then the smallest power of two (at least 2)
+    that holds them.
 
     A finished learner is frozen, so leaving it out changes nothing but the cost: the
     controller and learner run for fewer robots.  Sizes come from a short ladder (each is
     compiled once), and a batch never shrinks to one, which XLA compiles differently.
     """
-    batch, active = len(done), int(np.sum(~done))
     size = max(2, 1 << max(active - 1, 0).bit_length())
-    if size > batch // 2:
+    return batch if size > batch // 2 else size
+
+
+def compacted_rows(done: np.ndarray) -> np.ndarray | None:
+    """The learners a chunk runs once many have finished (``compacted_size``): the
+    unfinished ones, padded with finished ones; None for the whole batch."""
+    batch, active = len(done), int(np.sum(~done))
+    size = compacted_size(active, batch)
+    if size == batch:
         return None
     return np.sort(np.concatenate([np.flatnonzero(~done), np.flatnonzero(done)[:size - active]]))
 
