@@ -27,6 +27,9 @@ from mjxcpg.cli import build_parser, main
     ["learn", "--trials", "1e3"],
     ["learn", "--trials", "1" + "0" * 400],
     ["eval", "--run", "x", "--max-slope-deg", "31"],
+    ["walk", "--platform", "atlas"],
+    ["sweep", "--platform", "atlas"],
+    ["learn", "--platform", "atlas"],
 ])
 def test_bad_input_is_one_line_and_nonzero(argv, capsys):
     with pytest.raises(SystemExit) as exit_info:
@@ -118,3 +121,17 @@ def test_the_package_names_are_the_apis():
     """``import mjxcpg`` lists the API's names itself, so that importing it loads no JAX:
     they must be the API's."""
     assert set(mjxcpg.__all__) - {"__version__"} == set(api.__all__)
+
+
+def test_learn_on_the_child_records_its_platform_and_walk_refuses_another(tmp_path, capsys):
+    """``learn --platform child`` learns with the child's gait constants (its leg is twice
+    QRIO's: Z_0 = 2 x 0.215 m, h' = 2 x 0.272 m); walking its checkpoint as QRIO is an error."""
+    out = tmp_path / "child"
+    assert main(["learn", "--platform", "child", "--k-s", "10", "--seed", "0", "--trials", "1", "--out", str(out),
+                 "--quiet", "--no-tensorboard"]) == 0
+    spec = json.loads((out / "config.json").read_text())["spec"]
+    assert spec["platform"] == "child"
+    assert spec["controller"]["z0"] == pytest.approx(0.43) and spec["trial"]["h_ref"] == pytest.approx(0.544)
+    capsys.readouterr()
+    assert main(["walk", "--checkpoint", str(out), "--platform", "qrio", "--seconds", "1"]) == 2
+    assert capsys.readouterr().err.strip() == f"mjxcpg: error: {out} was learned on child, not qrio"

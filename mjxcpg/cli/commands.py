@@ -69,9 +69,9 @@ def cmd_learn(args: argparse.Namespace) -> dict:
         raise UserError("--robot and --reward need --from: learning from scratch runs on the nominal robot")
     args.k_s = 10.0 if args.k_s is None else args.k_s
     args.seed = 0 if args.seed is None else args.seed
-    defaults = RunSpec.platform_defaults(args.platform)
-    trial = dataclasses.replace(defaults["trial"], max_trials=1000 if args.trials is None else args.trials)
-    spec = validate(RunSpec(**(defaults | {"k_s": (args.k_s,), "seeds": (args.seed,), "trial": trial})))
+    spec = RunSpec.for_platform(args.platform, k_s=(args.k_s,), seeds=(args.seed,))
+    spec = validate(dataclasses.replace(spec, trial=dataclasses.replace(
+        spec.trial, max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
     summary = _learn_or_sweep(spec, args, out)
     learn_path = out / "learn.json"

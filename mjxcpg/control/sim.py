@@ -64,8 +64,6 @@ def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
     latency and sensor noise); the layout, hence the controller, stays the nominal one's.
     """
     description = robots.platform(platform)
-    if robot not in ROBOTS:
-        raise ValueError(f"unknown robot {robot!r}; choose one of {', '.join(ROBOTS)}")
     model_dt = load_model(robot=description).opt.timestep if physics_dt is None else physics_dt
     return build_simulation(SimulationSpec(
         engine=engine or engines.default_engine(), platform=platform, slope_deg=float(slope_deg),
