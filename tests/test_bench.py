@@ -18,7 +18,9 @@ def test_json_report_is_the_last_line(capsys):
     for record in records:
         assert RECORD_KEYS <= set(record)
         assert record["engine"] == "mujoco" and record["workload"] == "physics"
-        assert record["robot_steps_per_s"] > 0 and record["compile_s"] is None  # raw C compiles nothing
+        assert record["robot_steps_per_s"] > 0
+        # our robot's physics is also replayed in a compiled scan; the humanoid's is raw C only
+        assert (record["compile_s"] > 0) if record["model"] == "qrio" else (record["compile_s"] is None)
     assert "steps/s" in captured.err  # the table goes to the terminal, off stdout
 
 

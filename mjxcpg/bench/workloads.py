@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import importlib.resources
 import io
 import time
@@ -108,18 +107,22 @@ def _replayed_physics(sim: Simulation, batch: int, control_steps: int) -> Worklo
 
     Each call advances its own copy of the ``full`` run by ``control_steps`` periods, untimed,
     recording what the engine was asked (``make_chunk(record=True)``); it then times the engine
-    replaying those steps alone: the C engines' host side (``_simulate``) in a plain loop with no
-    JAX, or a jitted scan of MJX's ``step``.  The n-th call replays the n-th call of ``full``.
+    replaying those steps alone in a jitted scan of its ``step``, and for the C engines also
+    their host side (``_simulate``) in a plain loop with no JAX, keeping the faster (at small
+    batches the native engine steps inside XLA, ``physics.native_step``; at large ones its
+    threads are reached from Python).  The n-th call replays the n-th call of ``full``.
     """
     engine = sim.engine
     spec, task = benchmark_learners(sim, batch)
     record = train.make_chunk(sim, task, control_steps, record=True)
     initial = engine.init(sim.qpos0, batch)
     run_state = train.init_run(sim, task, spec)
+    in_xla, compile_s = _xla_replay(engine, jax.eval_shape(record, run_state, initial)[1])
     if isinstance(engine, engines.MjxEngine):
-        replay, compile_s = _mjx_replay(engine, jax.eval_shape(record, run_state, initial)[1])
+        replay = in_xla
     else:
-        replay, compile_s = functools.partial(_c_replay, engine), None
+        def replay(transitions: train.Transition) -> float:
+            return min(_c_replay(engine, transitions), in_xla(transitions))
 
     def run() -> float:
         nonlocal run_state
@@ -141,10 +144,10 @@ def _c_replay(engine: engines.Engine, transitions: train.Transition) -> float:
     return time.perf_counter() - start
 
 
-def _mjx_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Callable, float]:
-    """A compiled scan making MJX's recorded calls alone, active masks included (in lockstep
-    MJX steps idle robots too and keeps their old state, as in ``full``); returns the timed
-    replay and its compile time."""
+def _xla_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Callable, float]:
+    """A compiled scan making the engine's recorded calls alone, active masks included (in
+    lockstep MJX steps idle robots too and keeps their old state, as in ``full``); returns
+    the timed replay and its compile time."""
     def steps(transitions):
         # Each call's whole new state is carried out of the loop, as ``full`` carries it: XLA
         # may then drop nothing (summing only qpos let it drop the sensors, for one).

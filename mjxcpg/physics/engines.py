@@ -31,6 +31,7 @@ import numpy as np
 from jax.experimental.buffer_callback import buffer_callback
 
 from mjxcpg.jaxutil.pytree import tree_where
+from mjxcpg.physics import native_step
 from mjxcpg.physics.model import Sensors
 from mjxcpg.robots.qrio import QRIO
 
@@ -212,6 +213,27 @@ class NativeEngine(_CEngine):
         self._pool = rollout.Rollout(nthread=self.threads if self.threads > 1 else 0)
         self._inline = rollout.Rollout(nthread=0)  # small batches: thread hand-offs cost more than they save
         self._buffers: dict[int, _RolloutBuffers] = {}
+        self._ffi_data = mujoco.MjData(model)  # the FFI handler's (XLA runs one call at a time)
+
+    def step(self, state: CState, ctrl: jax.Array, active: jax.Array | None = None,
+             pelvis_force: jax.Array | None = None) -> CState:
+        """Below the batch that uses the threads, MuJoCo C inside XLA (``native_step``),
+        when it could be built; otherwise, and with ``pelvis_force``, the host callback."""
+        batch = state.physics.shape[0]
+        small = batch < _ROBOTS_PER_THREAD * self.threads
+        one_cpu = jax.default_backend() == "cpu" and jax.device_count() == 1
+        target = native_step.step_handler() if small and one_cpu and pelvis_force is None else None
+        if target is None:
+            return super().step(state, ctrl, active, pelvis_force)
+        outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
+                   jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
+        physics, sensordata = jax.ffi.ffi_call(target, outputs, input_output_aliases={0: 0, 1: 1},
+                                               vmap_method="sequential")(
+            state.physics, state.sensordata, ctrl.astype(jnp.float32),
+            jnp.ones(batch, bool) if active is None else active,
+            model=np.int64(self.model._address), data=np.int64(self._ffi_data._address),
+            substeps=np.int64(self.substeps))
+        return CState(physics=physics, sensordata=sensordata)
 
     def _simulate(self, physics, ctrl, pelvis_force=None):
         batch = len(physics)

@@ -1,0 +1,100 @@
+// One control period of MuJoCo C for a batch of robots, as an XLA FFI handler.
+//
+// The native engine's host callback runs Python for every control period; at small batches
+// that costs more than the physics.  This handler makes the same MuJoCo calls as the
+// callback's mujoco.rollout (state set, warm start cleared, warning counters cleared, then
+// per substep: stop at a warning, set the controls, mj_step) and the same divergence test,
+// inside XLA's own call, with no Python.  mjxcpg/physics/native_step.py compiles and loads it.
+
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include <mujoco/mujoco.h>
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace {
+
+bool AnyWarning(const mjData* d) {
+  for (int i = 0; i < mjNWARNING; i++) {
+    if (d->warning[i].number) return true;
+  }
+  return false;
+}
+
+// Rows with ``active`` set: the state after ``substeps`` steps under ``ctrl`` (the servo
+// targets), or NaN where MuJoCo diverged (its clock did not advance by the control period,
+// or the state is not finite).  Other rows keep their values (the outputs alias the inputs).
+ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
+                ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
+                ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
+                int64_t model_address, int64_t data_address, int64_t substeps) {
+  const mjModel* m = reinterpret_cast<const mjModel*>(model_address);
+  mjData* d = reinterpret_cast<mjData*>(data_address);
+  const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
+  const int nsensordata = m->nsensordata, nu = m->nu;
+  const int64_t batch = active.element_count();
+  if (physics.element_count() != batch * nstate || sensordata.element_count() != batch * nsensordata ||
+      ctrl.element_count() != batch * nu) {
+    return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
+  }
+  const float* state_in = physics.typed_data();
+  const float* sensors_in = sensordata.typed_data();
+  const float* ctrl_in = ctrl.typed_data();
+  const bool* active_in = active.typed_data();
+  float* state_out = physics_out->typed_data();
+  float* sensors_out = sensordata_out->typed_data();
+  std::vector<mjtNum> start(nstate), stepped(nstate), controls(nu);
+  const double expected = substeps * m->opt.timestep;
+
+  // The user inputs the controls do not set, cleared as rollout clears them.
+  mju_zero(d->qfrc_applied, m->nv);
+  mju_zero(d->xfrc_applied, 6 * m->nbody);
+  for (int i = 0; i < m->neq; i++) d->eq_active[i] = m->eq_active0[i];
+
+  for (int64_t r = 0; r < batch; r++) {
+    float* row_out = state_out + r * nstate;
+    float* sensors_row_out = sensors_out + r * nsensordata;
+    if (state_out != state_in) std::copy(state_in + r * nstate, state_in + (r + 1) * nstate, row_out);
+    if (sensors_out != sensors_in) {
+      std::copy(sensors_in + r * nsensordata, sensors_in + (r + 1) * nsensordata, sensors_row_out);
+    }
+    if (!active_in[r]) continue;
+    for (int i = 0; i < nstate; i++) start[i] = state_in[r * nstate + i];
+    for (int i = 0; i < nu; i++) controls[i] = ctrl_in[r * nu + i];
+    mj_setState(m, d, start.data(), mjSTATE_FULLPHYSICS);
+    mju_zero(d->qacc_warmstart, m->nv);
+    for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
+    for (int64_t t = 0; t < substeps && !AnyWarning(d); t++) {
+      mj_setState(m, d, controls.data(), mjSTATE_CTRL);
+      mj_step(m, d);
+    }
+    mj_getState(m, d, stepped.data(), mjSTATE_FULLPHYSICS);
+    double sum = 0.0;
+    for (int i = 0; i < nstate; i++) sum += stepped[i];
+    const bool on_time = std::fabs(stepped[0] - start[0] - expected) <= 1e-6 + 1e-3 * expected;
+    const bool diverged = !on_time || !std::isfinite(sum);
+    for (int i = 0; i < nstate; i++) row_out[i] = diverged ? NAN : static_cast<float>(stepped[i]);
+    for (int i = 0; i < nsensordata; i++) {
+      sensors_row_out[i] = diverged ? NAN : static_cast<float>(d->sensordata[i]);
+    }
+  }
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(MjxcpgMujocoStep, Step,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::PRED>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Attr<int64_t>("model")
+                                  .Attr<int64_t>("data")
+                                  .Attr<int64_t>("substeps"));
