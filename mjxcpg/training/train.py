@@ -200,6 +200,31 @@ def _put_rows(rows: np.ndarray, whole: jax.Array, part: jax.Array) -> np.ndarray
     return whole
 
 
+@jax.jit
+def _take_rows_on_device(tree: Any, rows: jax.Array) -> Any:
+    return jax.tree.map(lambda x: x[rows], tree)
+
+
+@jax.jit
+def _put_rows_on_device(tree: Any, rows: jax.Array, part: Any) -> Any:
+    return jax.tree.map(lambda whole, p: whole.at[rows].set(p), tree, part)
+
+
+def take_rows(tree: Any, rows: np.ndarray) -> Any:
+    """Rows ``rows`` of every leaf: one jitted gather on one device (a leaf at a time costs
+    a dispatch each), on the host over several."""
+    if jax.device_count() == 1:
+        return _take_rows_on_device(tree, jnp.asarray(rows))
+    return jax.tree.map(lambda x: x[rows], tree)
+
+
+def put_rows(tree: Any, rows: np.ndarray, part: Any) -> Any:
+    """``tree`` with rows ``rows`` of every leaf replaced by ``part``'s, as ``take_rows``."""
+    if jax.device_count() == 1:
+        return _put_rows_on_device(tree, jnp.asarray(rows), part)
+    return jax.tree.map(functools.partial(_put_rows, rows), tree, part)
+
+
 def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
                    on_chunk: Callable[[RunState, dict], None] | None = None,
                    chunk_fn: Callable | None = None) -> RunState:
@@ -214,9 +239,9 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
         if rows is None:
             state = chunk(shard_learners(state, spec.batch), shard_learners(initial, spec.batch))
         else:
-            take = functools.partial(jax.tree.map, lambda x: x[rows])
-            part = chunk(shard_learners(take(state), len(rows)), shard_learners(take(initial), len(rows)))
-            state = jax.tree.map(functools.partial(_put_rows, rows), state, part)
+            part = chunk(shard_learners(take_rows(state, rows), len(rows)),
+                         shard_learners(take_rows(initial, rows), len(rows)))
+            state = put_rows(state, rows, part)
         state = jax.block_until_ready(state)
         robot_steps_per_s = np.sum(~done) * steps * sim.engine.substeps / (time.perf_counter() - start)
         counts = progress_counts(task, state.learners) | {"robot_steps_per_s": robot_steps_per_s}
