@@ -200,8 +200,9 @@ def _chunk_of_processes(chunk: Callable, state: RunState, initial: Any, rows: np
     mine = np.intersect1d(rows, group.block(jax.tree.leaves(state)[0].shape[0]))
     parts = []
     if len(mine):
-        # A lone learner runs beside a copy of itself: a batch of one compiles differently.
-        padded = mine if len(mine) >= 2 else np.repeat(mine, 2)
+        # A lone learner runs beside a copy of itself, as one process would run it in a wider
+        # batch: a batch of one compiles differently.
+        padded = mine if len(mine) >= 2 or len(rows) < 2 else np.repeat(mine, 2)
         take = functools.partial(jax.tree.map, lambda x: x[padded])
         stepped = chunk(shard_learners(take(state), len(padded)), shard_learners(take(initial), len(padded)))
         parts = [np.asarray(x)[:len(mine)] for x in jax.tree.leaves(jax.device_get(stepped))]
