@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-slow bench clean osmesa
+.PHONY: run test test-slow bench clean osmesa compiler
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -14,10 +14,10 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-run: $(STAMP) osmesa
+run: $(STAMP) osmesa compiler
 	$(BIN)/mjxcpg sweep --config paper --out runs/paper --resume
 
-test: $(STAMP) osmesa
+test: $(STAMP) osmesa compiler
 	$(BIN)/pytest -q
 
 test-slow: $(STAMP)
@@ -34,6 +34,16 @@ osmesa:
 	  { apt-get install -y -qq libosmesa6 >/dev/null 2>&1 || \
 	    { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq libosmesa6 >/dev/null 2>&1; }; } || \
 	  echo "warning: could not install libosmesa6; 'mjxcpg render' needs OSMesa or a GPU with EGL" >&2; }
+
+# A C++ compiler builds the native engine's MuJoCo step inside XLA (mjxcpg/physics/native_step.py)
+# on first use. A failed install is a warning: without it MuJoCo runs through a Python
+# callback, with the same results, slower at small batches.
+compiler:
+	@command -v c++ >/dev/null || command -v g++ >/dev/null || { \
+	  command -v apt-get >/dev/null && \
+	  { apt-get install -y -qq g++ >/dev/null 2>&1 || \
+	    { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq g++ >/dev/null 2>&1; }; } || \
+	  echo "warning: could not install g++; the native engine steps MuJoCo through a Python callback (slower at small batches)" >&2; }
 
 clean:
 	rm -rf $(VENV) .pytest_cache

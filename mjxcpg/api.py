@@ -10,8 +10,10 @@ from typing import Callable, Iterable
 from mjxcpg.evaluation import registry
 from mjxcpg.evaluation import report as evaluation_report
 from mjxcpg.evaluation.protocol import EvalParams
+from mjxcpg.jaxutil import processes as jax_processes
 from mjxcpg.training import report as run_report
 from mjxcpg.training import runs, train
+from mjxcpg.training.checkpoints import first_line
 from mjxcpg.training.config import load_spec, validate
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec
@@ -23,7 +25,7 @@ EVALUATIONS = registry.NAMES  # in run order; transfer: on the hardware robot on
 
 def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = None, resume: bool = False,
           force: bool = False, progress: bool = True, tensorboard: bool = True,
-          allow_other_code: bool = False) -> dict:
+          allow_other_code: bool = False, processes: jax_processes.Group = jax_processes.ALONE) -> dict | None:
     """Run the learners of ``config`` (a config's name, a .toml/.json path or a ``RunSpec``)
     in lockstep until each has met the success criterion or used its budget, into the run
     directory ``out`` (checkpoints, TensorBoard events, reports: README, "Learning").
@@ -31,15 +33,36 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
     ``out`` is locked for the run (``runs.locked``); ``allow_other_code`` lets ``resume``
     continue a run that other code made, and records that it did.
 
+    ``processes``: the group of processes (``mjxcpg.jaxutil.processes.join``) that runs the
+    learners together, every one calling ``sweep`` alike.  Process 0 alone reads and writes
+    ``out``; the others step their share of the learners and return None.
+
     Returns what ``out/summary.json`` holds (per learner: k_s, seed, succeeded,
     trials_to_success, mean_vx, ...), with ``wall_s``, the wall time of this session."""
-    spec = validate(config) if isinstance(config, RunSpec) else load_spec(str(config))
-    out = Path(out)
+    try:
+        spec = validate(config) if isinstance(config, RunSpec) else load_spec(str(config))
+        if not processes.writer:
+            runs.follow(spec, processes)
+            processes.barrier()  # until process 0 has written the report
+            return None
+        summary = _sweep_here(spec, Path(out), engine, resume, force, progress, tensorboard, allow_other_code,
+                              processes)
+        processes.barrier()
+        return summary
+    except BaseException as error:
+        processes.abort(first_line(error))
+        raise
+
+
+def _sweep_here(spec: RunSpec, out: Path, engine, resume, force, progress, tensorboard, allow_other_code,
+                processes: jax_processes.Group) -> dict:
     with runs.locked(out):
         if resume and runs.is_finished(out):
+            runs.share_start(processes, None, None)
             return finished_summary(out, spec)
         sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
-                                                tensorboard=tensorboard, allow_other_code=allow_other_code)
+                                                tensorboard=tensorboard, allow_other_code=allow_other_code,
+                                                group=processes)
         summary = run_report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary

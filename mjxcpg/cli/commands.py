@@ -49,21 +49,35 @@ def cmd_walk(args: argparse.Namespace) -> dict:
     return summary
 
 
-def _learn_or_sweep(spec, args, out: Path) -> dict:
-    """Run (or resume) ``spec`` in ``out`` and write its report, ``out`` locked meanwhile."""
+def _join(args: argparse.Namespace):
+    """The processes that run the learners together (``mjxcpg.jaxutil.processes``): this one
+    alone unless a flag asks for several, before anything else touches JAX."""
+    from mjxcpg.jaxutil import processes
+
+    if not (args.distributed or args.coordinator or args.num_processes or args.process_id is not None):
+        return processes.ALONE
+    return processes.join(args.coordinator, args.num_processes, args.process_id, args.join_timeout)
+
+
+def _learn_or_sweep(spec, args, out: Path) -> dict | None:
+    """Run (or resume) ``spec`` in ``out`` and write its report, ``out`` locked meanwhile;
+    None in a process other than 0 of several (``args.group``), which writes nothing."""
     from mjxcpg import api
 
     return api.sweep(spec, out, args.engine, resume=args.resume, force=args.force, progress=not args.quiet,
-                     tensorboard=args.tensorboard, allow_other_code=args.allow_other_code)
+                     tensorboard=args.tensorboard, allow_other_code=args.allow_other_code, processes=args.group)
 
 
-def cmd_learn(args: argparse.Namespace) -> dict:
+def cmd_learn(args: argparse.Namespace) -> dict | None:
+    args.group = _join(args)
     from mjxcpg.training.config import validate
     from mjxcpg.training.files import write_text_atomic
     from mjxcpg.training.runs import locked
     from mjxcpg.training.train import RunSpec
 
     if args.from_run is not None:
+        if args.group.count > 1:
+            raise UserError("--from runs in one process: leave out the flags of several processes")
         return _learn_online(args)
     if args.robot != "nominal" or args.reward is not None:
         raise UserError("--robot and --reward need --from: learning from scratch runs on the nominal robot")
@@ -74,6 +88,8 @@ def cmd_learn(args: argparse.Namespace) -> dict:
         spec.trial, max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
     summary = _learn_or_sweep(spec, args, out)
+    if summary is None:
+        return None
     learn_path = out / "learn.json"
     with locked(out):  # the run's files, renamed and added to
         if learn_path.is_file():  # a finished run, resumed: its record stays as it is
@@ -122,12 +138,15 @@ def cmd_render(args: argparse.Namespace) -> dict:
         raise UserError(str(error)) from None
 
 
-def cmd_sweep(args: argparse.Namespace) -> dict:
+def cmd_sweep(args: argparse.Namespace) -> dict | None:
+    args.group = _join(args)
     from mjxcpg.training.config import load_spec
 
     spec = load_spec(args.config, platform=args.platform)
     out = Path(args.out or f"runs/{Path(args.config).stem}")
     summary = _learn_or_sweep(spec, args, out)
+    if summary is None:
+        return None
     print((out / "table1.md").read_text())
     ok = sum(r["succeeded"] for r in summary["learners"])
     return {"out": str(out), "learners": len(summary["learners"]), "succeeded": ok,

@@ -75,6 +75,18 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                        help="write no TensorBoard event files (OUT/tensorboard)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+        several = p.add_argument_group(
+            "several processes", "run the learners in cooperating processes, on one host or many "
+            "(jax.distributed; docs/performance.md): every process runs the same command, and process 0 "
+            "writes --out; flags left out come from the environment as JAX reads it (JAX_COORDINATOR_ADDRESS, "
+            "Slurm, Open MPI)")
+        several.add_argument("--distributed", action="store_true",
+                             help="join the other processes, everything from the environment")
+        several.add_argument("--coordinator", metavar="HOST:PORT", help="process 0's address")
+        several.add_argument("--num-processes", type=count, default=None, help="how many processes")
+        several.add_argument("--process-id", type=index, default=None, help="this process, 0 to N-1")
+        several.add_argument("--join-timeout", type=count, default=120,
+                             help="seconds to wait for every process to join (default 120)")
 
     learn = sub.add_parser("learn", help="one learner learns the propulsive feedback a_5")
     learn.add_argument("--k-s", type=_number(range_of("k_s")), default=None, help="velocity reward gain k_S of eq 27 (default 10)")

@@ -1,2 +1,2 @@
 """JAX helpers every layer may use: XLA:CPU settings and jit (``xla``), pytree selection
-(``pytree``)."""
+(``pytree``), several processes through ``jax.distributed`` (``processes``)."""

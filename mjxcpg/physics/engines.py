@@ -121,7 +121,7 @@ class _CEngine(Engine):
             inputs.append(pelvis_force.astype(jnp.float32))
         outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
                    jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
-        if jax.default_backend() == "cpu" and jax.device_count() == 1:
+        if jax.default_backend() == "cpu" and jax.local_device_count() == 1:
             # The host writes the stepped rows straight into XLA's buffers, which alias the
             # inputs, so idle robots cost no copy and nothing is packed or allocated.  (Over
             # several devices, buffer_callback runs once per device: there the batch goes to one
@@ -221,7 +221,7 @@ class NativeEngine(_CEngine):
         when it could be built; otherwise, and with ``pelvis_force``, the host callback."""
         batch = state.physics.shape[0]
         small = batch < _ROBOTS_PER_THREAD * self.threads
-        one_cpu = jax.default_backend() == "cpu" and jax.device_count() == 1
+        one_cpu = jax.default_backend() == "cpu" and jax.local_device_count() == 1
         target = native_step.step_handler() if small and one_cpu and pelvis_force is None else None
         if target is None:
             return super().step(state, ctrl, active, pelvis_force)

@@ -66,11 +66,23 @@ def checkpoint_leaves(state: Any, spec: train.RunSpec) -> dict:
 
 def manager_of(out: Path, writer: bool = False) -> ocp.CheckpointManager:
     """Orbax's view of ``out``'s checkpoints; a ``writer`` (holding the lock) also clears the
-    temporary directories of writes that a kill or a failure left unfinished."""
+    temporary directories of writes that a kill or a failure left unfinished.
+
+    Among several processes (``jax.process_count() > 1``) the one that asks (process 0 of a
+    run) reads and writes the checkpoints alone: orbax's multi-process options name it as
+    the only active process, so that orbax waits for no other at its barriers."""
+    directory = out.resolve() / CHECKPOINTS
+    extra = {}
+    if jax.process_count() > 1:
+        me = jax.process_index()
+        extra["multiprocessing_options"] = ocp.options.MultiprocessingOptions(primary_host=me,
+                                                                              active_processes={me})
+        if writer:  # orbax does not make the directory for a subset of the processes
+            directory.mkdir(parents=True, exist_ok=True)
     return ocp.CheckpointManager(
-        out.resolve() / CHECKPOINTS,
-        options=ocp.CheckpointManagerOptions(max_to_keep=KEPT_CHECKPOINTS, create=writer,
-                                             cleanup_tmp_directories=writer, read_only=not writer))
+        directory, options=ocp.CheckpointManagerOptions(
+            max_to_keep=KEPT_CHECKPOINTS, create=writer and not extra, cleanup_tmp_directories=writer,
+            read_only=not writer, **extra))
 
 
 def written(out: Path, action: Callable[[], Any]) -> Any:

@@ -40,6 +40,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from mjxcpg.control.sim import Simulation
+from mjxcpg.jaxutil import processes
 from mjxcpg.training import config, events, provenance, train
 from mjxcpg.training.checkpoints import (RunError, damage_text, manager_of, restore_state, save_next, set_aside,
                                          write_checkpoint, written)
@@ -187,16 +188,19 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
 def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
             force: bool = False, progress: bool = True,
             tensorboard: bool = True, allow_other_code: bool = False,
+            group: processes.Group = processes.ALONE,
             ) -> tuple[Simulation, train.Task, train.RunState, float]:
     """Run (or resume) to the end, checkpointing after every chunk, with a progress line
     (``progress``) and TensorBoard event files (``tensorboard``, ``mjxcpg.training.events``).
-    The caller holds ``locked(out)``.
+    The caller holds ``locked(out)``.  With several processes (``group``) this is process 0,
+    and the others run ``follow`` meanwhile.
 
     Returns the simulation, task, final state and the wall time of this session."""
     sim, task, state, manager = prepare(out, spec, engine, resume, force, allow_other_code)
     start = time.perf_counter()
     try:
-        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard)
+        share_start(group, sim.engine.name, state)
+        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard, group)
     finally:
         try:
             written(out, manager.wait_until_finished)
@@ -205,10 +209,38 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     return sim, task, state, time.perf_counter() - start
 
 
-def learn_to_end(out: Path, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
-                 checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool) -> train.RunState:
+def share_start(group: processes.Group, engine: str | None, state: train.RunState | None) -> tuple:
+    """Process 0's start of a run (its engine and state, fresh or resumed) to every process;
+    an engine of None: the run is not to be run (it has finished)."""
+    if group.count == 1:
+        return engine, state
+    payload = None
+    if group.writer:
+        leaves = [] if state is None else [np.asarray(x) for x in jax.tree.leaves(jax.device_get(state))]
+        payload = processes.pack([np.frombuffer((engine or "").encode(), np.uint8), *leaves])
+    name, *leaves = processes.unpack(group.broadcast(payload))
+    return name.tobytes().decode() or None, leaves
+
+
+def follow(spec: train.RunSpec, group: processes.Group) -> train.RunState | None:
+    """A process other than 0: step this process's learners (``Group.block``) until the run
+    ends, from the start process 0 shares; None when process 0 found the run finished."""
+    engine, leaves = share_start(group, None, None)
+    if engine is None:
+        return None
+    sim = spec.simulation(engine)
+    task = train.make_task(sim, spec)
+    template = train.init_run(sim, task, spec)
+    state = jax.tree.unflatten(jax.tree.structure(template), leaves)
+    return learn_to_end(None, sim, task, spec, state, None, False, False, group)
+
+
+def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
+                 checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool,
+                 group: processes.Group = processes.ALONE) -> train.RunState:
     """Chunks until every learner is done; after each, a checkpoint (unless ``checkpoints`` is
-    None), the progress line and the event files of ``out``."""
+    None), the progress line and the event files of ``out``; over the processes of ``group``
+    (``train.run_until_done``)."""
     run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
     book = jax.device_get(state.learners.book)
     done = train.done_mask(task, state.learners)
@@ -229,7 +261,7 @@ def learn_to_end(out: Path, sim: Simulation, task: train.Task, spec: train.RunSp
                                                            if k != "trials" and v is not None})
 
     try:
-        return train.run_until_done(sim, task, spec, state, on_chunk)
+        return train.run_until_done(sim, task, spec, state, on_chunk, group=group)
     finally:
         line.close()
         if run_events is not None:

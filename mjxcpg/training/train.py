@@ -15,7 +15,7 @@ import numpy as np
 
 from mjxcpg import robots
 from mjxcpg.control.controller import ControllerParams
-from mjxcpg.jaxutil import xla
+from mjxcpg.jaxutil import processes, xla
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning import ngnet
 from mjxcpg.learning.learner import (LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step,
@@ -117,12 +117,13 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
 
 
 def learner_sharding(batch: int) -> jax.sharding.NamedSharding:
-    """The learner axis split over as many of JAX's devices as divide the batch evenly.
+    """The learner axis split over as many of this process's JAX devices as divide the batch
+    evenly (with several processes, each steps its own learners: ``run_until_done``).
 
     Each device keeps at least two learners: XLA compiles a batch of one differently (its
     degenerate axis is dropped), which would change results in the last bit.
     """
-    devices = jax.devices()
+    devices = jax.local_devices()
     count = max(n for n in range(1, len(devices) + 1)
                 if batch % n == 0 and (n == 1 or batch // n >= 2))
     mesh = jax.sharding.Mesh(np.array(devices[:count]), ("learners",))
@@ -213,22 +214,48 @@ def _put_rows_on_device(tree: Any, rows: jax.Array, part: Any) -> Any:
 def take_rows(tree: Any, rows: np.ndarray) -> Any:
     """Rows ``rows`` of every leaf: one jitted gather on one device (a leaf at a time costs
     a dispatch each), on the host over several."""
-    if jax.device_count() == 1:
+    if jax.local_device_count() == 1:
         return _take_rows_on_device(tree, jnp.asarray(rows))
     return jax.tree.map(lambda x: x[rows], tree)
 
 
 def put_rows(tree: Any, rows: np.ndarray, part: Any) -> Any:
     """``tree`` with rows ``rows`` of every leaf replaced by ``part``'s, as ``take_rows``."""
-    if jax.device_count() == 1:
+    if jax.local_device_count() == 1:
         return _put_rows_on_device(tree, jnp.asarray(rows), part)
     return jax.tree.map(functools.partial(_put_rows, rows), tree, part)
 
 
+def _chunk_of_processes(chunk: Callable, state: RunState, initial: Any, rows: np.ndarray,
+                        group: processes.Group) -> RunState:
+    """One chunk over several processes: each steps the learners of ``rows`` in its block,
+    and every process gets every process's stepped learners back (host arrays)."""
+    mine = np.intersect1d(rows, group.block(jax.tree.leaves(state)[0].shape[0]))
+    parts = []
+    if len(mine):
+        # A lone learner runs beside a copy of itself, as one process would run it in a wider
+        # batch: a batch of one compiles differently.
+        padded = mine if len(mine) >= 2 or len(rows) < 2 else np.repeat(mine, 2)
+        take = functools.partial(jax.tree.map, lambda x: x[padded])
+        stepped = chunk(shard_learners(take(state), len(padded)), shard_learners(take(initial), len(padded)))
+        parts = [np.asarray(x)[:len(mine)] for x in jax.tree.leaves(jax.device_get(stepped))]
+    leaves, treedef = jax.tree.flatten(jax.device_get(state))
+    leaves = [np.array(x) for x in leaves]
+    for payload in group.allgather(processes.pack([mine, *parts])):
+        rows_of, *stepped_leaves = processes.unpack(payload)
+        for whole, part in zip(leaves, stepped_leaves):
+            whole[rows_of] = part
+    return jax.tree.unflatten(treedef, leaves)
+
+
 def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
                    on_chunk: Callable[[RunState, dict], None] | None = None,
-                   chunk_fn: Callable | None = None) -> RunState:
-    """Python loop over jitted chunks until every learner has succeeded or used its budget."""
+                   chunk_fn: Callable | None = None, group: processes.Group = processes.ALONE) -> RunState:
+    """Python loop over jitted chunks until every learner has succeeded or used its budget.
+
+    With several processes (``group``), each steps the learners of its block
+    (``Group.block``) and all see the whole state after each chunk, so that every process
+    takes the same decisions (when to stop, which rows to compact) as one process would."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = chunk_fn or make_chunk(sim, task, steps)
     initial = sim.engine.init(sim.qpos0, spec.batch)
@@ -236,7 +263,10 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     while not done.all():
         start = time.perf_counter()
         rows = compacted_rows(done)
-        if rows is None:
+        if group.count > 1:
+            state = _chunk_of_processes(chunk, state, initial,
+                                        np.arange(spec.batch) if rows is None else rows, group)
+        elif rows is None:
             state = chunk(shard_learners(state, spec.batch), shard_learners(initial, spec.batch))
         else:
             part = chunk(shard_learners(take_rows(state, rows), len(rows)),

@@ -1,0 +1,105 @@
+"""A finished run's wall time against what MuJoCo C alone needs for the same physics steps.
+
+From the run's TensorBoard events (``tensorboard/run``: after every chunk, its wall time, the
+learners finished and the robot-steps per second), each chunk's robot-steps are known: the
+learners unfinished before it, times its control periods, times the physics steps per
+period.  The lower bound steps that many robots with raw MuJoCo C (``mujoco.rollout``, one
+call over many recorded states) on the threads the run's engine used for that chunk: the
+native engine's threads from ``engines._ROBOTS_PER_THREAD`` robots per thread, else one
+(``--cores``: fewer, for a run pinned to fewer cores than its engine has threads).
+Both sides count from the first chunk's end (its compilation apart) to the last chunk's end.
+
+The C cost per robot-step is measured here, on states of the run's own spec: a chunk of
+``--periods`` control periods of its first 8 learners is recorded (after a warm-up chunk from
+standing), and every recorded (state, servo targets) pair is stepped once.  Run it on the
+machine that made the run, and on a quiet one.
+
+    NPROC=1 .venv/bin/python bench/sweep_lower_bound.py runs/paper [--periods 500]
+"""
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import jax
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from mjxcpg.jaxutil import xla
+from mjxcpg.physics import engines
+from mjxcpg.training import runs, train
+from mjxcpg.training.events import EVENTS_DIR, RUN_NAME, read_events
+
+SAMPLE_LEARNERS = 8
+
+
+def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int) -> tuple[float, int, int]:
+    """(seconds per robot-step of raw MuJoCo C on one thread, the engine's threads, substeps)."""
+    sample = dataclasses.replace(spec, k_s=spec.k_s[:SAMPLE_LEARNERS], seeds=spec.seeds[:SAMPLE_LEARNERS])
+    sim = sample.simulation(engine_name)
+    task = train.make_task(sim, sample)
+    record = train.make_chunk(sim, task, periods, record=True)
+    initial = sim.engine.init(sim.qpos0, sample.batch)
+    state, _ = jax.block_until_ready(record(train.init_run(sim, task, sample), initial))
+    _, transitions = jax.block_until_ready(record(state, initial))
+    physics = np.asarray(transitions.physics.physics, np.float64).reshape(-1, sim.engine.nstate)
+    ctrl = np.asarray(transitions.ctrl, np.float64).reshape(len(physics), 1, -1)
+    substeps = sim.engine.substeps
+    control = np.ascontiguousarray(np.repeat(ctrl, substeps, axis=1))
+    model = sim.model
+    runner, data = rollout.Rollout(nthread=0), [mujoco.MjData(model)]
+    out_state = np.empty((len(physics), substeps, len(physics[0])))
+    out_sensors = np.empty((len(physics), substeps, model.nsensordata))
+    times = []
+    for _ in range(3):
+        start = time.perf_counter()
+        runner.rollout([model] * len(physics), data, physics, control, control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+                       skip_checks=True, nstep=substeps, initial_warmstart=np.zeros((len(physics), model.nv)),
+                       state=out_state, sensordata=out_sensors)
+        times.append(time.perf_counter() - start)
+    threads = getattr(sim.engine, "threads", 1)
+    return min(times) / (len(physics) * substeps), threads, substeps
+
+
+def lower_bound(run_dir: Path, periods: int, cores: int | None) -> dict:
+    spec, record = runs.read_config(run_dir)
+    events = [(wall, values) for wall, _, values in read_events(run_dir / EVENTS_DIR / RUN_NAME)]
+    per_step, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods)
+    threads = min(threads, cores or threads)
+    chunk_periods = round(spec.chunk_seconds / spec.controller.control_dt)
+    bound, robot_steps = 0.0, 0
+    for (_, before), (_, after) in zip(events, events[1:]):
+        active = spec.batch - int(before["progress/learners_finished"])
+        rows = train.compacted_size(active, spec.batch)
+        steps = active * chunk_periods * substeps
+        robot_steps += steps
+        bound += steps * per_step / (threads if rows >= engines._ROBOTS_PER_THREAD * threads else 1)
+    wall = events[-1][0] - events[0][0]
+    return {"run": str(run_dir), "engine": record["engine"], "wall_s": wall, "robot_steps": robot_steps,
+            "c_us_per_robot_step": per_step * 1e6, "threads": threads, "lower_bound_s": bound,
+            "ratio": wall / bound if bound else None}
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--periods", type=int, default=500, help="control periods recorded for the C cost")
+    parser.add_argument("--cores", type=int, default=None,
+                        help="cores the run had (a run pinned with taskset had fewer than its engine's threads)")
+    args = parser.parse_args(argv)
+    print("| run | engine | wall, first chunk's end to last (s) | robot-steps | raw C (us per robot-step, 1 thread) "
+          "| lower bound (s) | wall / bound |")
+    print("|---|---|---|---|---|---|---|")
+    for run in args.runs:
+        r = lower_bound(run, args.periods, args.cores)
+        print(f"| {r['run']} | {r['engine']} | {r['wall_s']:.1f} | {r['robot_steps']:,} | {r['c_us_per_robot_step']:.2f} "
+              f"| {r['lower_bound_s']:.1f} | {r['ratio']:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    xla.one_cpu_thread()
+    sys.exit(main(sys.argv[1:]))
