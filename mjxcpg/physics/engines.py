@@ -38,7 +38,10 @@ from mjxcpg.robots.qrio import QRIO
 ENGINES = ("mujoco", "native", "mjx")
 _FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CTRL_AND_XFRC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
-_ROBOTS_PER_THREAD = 4  # the native engine uses its threads from this many robots per thread
+# The native engine uses its threads from this many robots per thread; below, one thread steps
+# the batch inside XLA, since handing 4 robots to each of 2 threads gained nothing over one
+# thread (``mjxcpg bench``'s physics at batches 4 and 8).
+_ROBOTS_PER_THREAD = 8
 _CPU_SLICE = 32  # MJX on the CPU steps at most this many robots in one vmap (MjxEngine._map)
 
 
