@@ -84,6 +84,13 @@ class LegNames(NamedTuple):
 LEG_JOINTS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
 
 
+def leg_names(side: str) -> LegNames:
+    """The names of a leg in the convention both of this project's models follow: the side's
+    prefix ("l" or "r") and an underscore before the part's name."""
+    return LegNames(joints=tuple(f"{side}_{j}" for j in LEG_JOINTS), hip=f"{side}_hip", shin=f"{side}_shin",
+                    ankle=f"{side}_ankle", sole=f"{side}_sole", force=f"{side}_sole_force")
+
+
 @dataclasses.dataclass(frozen=True)
 class RobotDescription:
     """A biped: its MJCF and what the controller, estimator and engines look up in it."""
@@ -91,14 +98,15 @@ class RobotDescription:
     name: str
     package: str | None                   # Python package that holds the MJCF (package data)
     mjcf: str                             # the MJCF's file name in that package; a path if package is None
-    floor: str                            # plane geom, tilted for slopes
-    pelvis: str                           # body pushed by the evaluations' pelvis force
-    gyro: str                             # sensor: the pelvis' angular velocity (its own frame)
-    orientation: str                      # sensor: the pelvis' orientation quaternion
-    left: LegNames
-    right: LegNames
     home_pose: tuple[tuple[str, float], ...]  # servo targets (rad) of joints the CPG does not move
     leg_length: float                     # hip to ankle with the leg straight (m): thigh + shin
+    # The names below default to the convention both of this project's models follow.
+    floor: str = "floor"                  # plane geom, tilted for slopes
+    pelvis: str = "pelvis"                # body pushed by the evaluations' pelvis force
+    gyro: str = "imu_gyro"                # sensor: the pelvis' angular velocity (its own frame)
+    orientation: str = "imu_quat"         # sensor: the pelvis' orientation quaternion
+    left: LegNames = leg_names("l")
+    right: LegNames = leg_names("r")
     gravity: float = REFERENCE_GRAVITY
 
     @property
@@ -111,13 +119,6 @@ class RobotDescription:
 
     def mjcf_resource(self) -> Traversable:
         return importlib.resources.files(self.package) / self.mjcf if self.package else Path(self.mjcf)
-
-
-def leg_names(side: str) -> LegNames:
-    """The names of a leg in the convention both of this project's models follow: the side's
-    prefix ("l" or "r") and an underscore before the part's name."""
-    return LegNames(joints=tuple(f"{side}_{j}" for j in LEG_JOINTS), hip=f"{side}_hip", shin=f"{side}_shin",
-                    ankle=f"{side}_ankle", sole=f"{side}_sole", force=f"{side}_sole_force")
 
 
 def scaled_mjcf(source: Path, length: float, mass: float) -> str:

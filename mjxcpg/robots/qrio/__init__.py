@@ -4,18 +4,12 @@ The robot of Endo et al. (2005): its gait constants are the published ones
 (``description.REFERENCE_GAIT``), so ``QRIO.gait`` is them unchanged.
 """
 
-from mjxcpg.robots.description import RobotDescription, leg_names
+from mjxcpg.robots.description import RobotDescription
 
 QRIO = RobotDescription(
     name="qrio",
     package=__name__,
     mjcf="qrio.xml",
-    floor="floor",
-    pelvis="pelvis",
-    gyro="imu_gyro",
-    orientation="imu_quat",
-    left=leg_names("l"),
-    right=leg_names("r"),
     # Arms slightly away from the body, elbows a little bent.
     home_pose=(("l_shoulder_roll", 0.15), ("l_elbow", -0.3), ("r_shoulder_roll", -0.15), ("r_elbow", -0.3)),
     leg_length=0.24,
