@@ -72,9 +72,9 @@ def step_handler() -> str | None:
     on stderr) when it cannot be built or is switched off with ``MJXCPG_NO_FFI``."""
     if os.environ.get(DISABLE):
         return None
-    source = importlib.resources.files("mjxcpg.physics").joinpath("mujoco_step.cc").read_bytes()
-    library = cache_dir() / _library_name(source)
     try:
+        source = importlib.resources.files("mjxcpg.physics").joinpath("mujoco_step.cc").read_bytes()
+        library = cache_dir() / _library_name(source)
         if not library.is_file():
             _build(source, library)
         handle = ctypes.cdll.LoadLibrary(str(library))
