@@ -236,8 +236,8 @@ def _chunk_of_processes(chunk: Callable, state: RunState, initial: Any, rows: np
         # A lone learner runs beside a copy of itself, as one process would run it in a wider
         # batch: a batch of one compiles differently.
         padded = mine if len(mine) >= 2 or len(rows) < 2 else np.repeat(mine, 2)
-        take = functools.partial(jax.tree.map, lambda x: x[padded])
-        stepped = chunk(shard_learners(take(state), len(padded)), shard_learners(take(initial), len(padded)))
+        stepped = chunk(shard_learners(take_rows(state, padded), len(padded)),
+                        shard_learners(take_rows(initial, padded), len(padded)))
         parts = [np.asarray(x)[:len(mine)] for x in jax.tree.leaves(jax.device_get(stepped))]
     leaves, treedef = jax.tree.flatten(jax.device_get(state))
     leaves = [np.array(x) for x in leaves]
@@ -250,14 +250,14 @@ def _chunk_of_processes(chunk: Callable, state: RunState, initial: Any, rows: np
 
 def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
                    on_chunk: Callable[[RunState, dict], None] | None = None,
-                   chunk_fn: Callable | None = None, group: processes.Group = processes.ALONE) -> RunState:
+                   group: processes.Group = processes.ALONE) -> RunState:
     """Python loop over jitted chunks until every learner has succeeded or used its budget.
 
     With several processes (``group``), each steps the learners of its block
     (``Group.block``) and all see the whole state after each chunk, so that every process
     takes the same decisions (when to stop, which rows to compact) as one process would."""
     steps = round(spec.chunk_seconds / task.dt)
-    chunk = chunk_fn or make_chunk(sim, task, steps)
+    chunk = make_chunk(sim, task, steps)
     initial = sim.engine.init(sim.qpos0, spec.batch)
     done = done_mask(task, state.learners)
     while not done.all():
