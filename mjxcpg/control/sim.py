@@ -25,7 +25,7 @@ class SimulationSpec:
     engine: str                   # one of engines.ENGINES
     platform: str                 # one of mjxcpg.robots.PLATFORMS
     slope_deg: float              # floor slope, uphill along +x positive
-    physics_dt: float             # physics time step (s)
+    physics_dt: float | None      # physics time step (s); None before ``build_simulation``: the model's
     robot: str                    # one of ROBOTS: the nominal robot or its hardware stand-in
     params: ControllerParams      # the controller's constants: their one home in a simulation
 
@@ -63,11 +63,9 @@ def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
     ``robot="hardware"`` simulates the perturbed robot of ``mjxcpg.physics.hardware`` (its model,
     latency and sensor noise); the layout, hence the controller, stays the nominal one's.
     """
-    description = robots.platform(platform)
-    model_dt = load_model(robot=description).opt.timestep if physics_dt is None else physics_dt
     return build_simulation(SimulationSpec(
         engine=engine or engines.default_engine(), platform=platform, slope_deg=float(slope_deg),
-        physics_dt=float(model_dt), robot=robot, params=params or ControllerParams.of(description)))
+        physics_dt=physics_dt, robot=robot, params=params or ControllerParams.of(robots.platform(platform))))
 
 
 def build_simulation(spec: SimulationSpec) -> Simulation:
@@ -75,6 +73,7 @@ def build_simulation(spec: SimulationSpec) -> Simulation:
     the engine."""
     description = robots.platform(spec.platform)
     model = load_model(spec.slope_deg, timestep=spec.physics_dt, robot=description)
+    spec = dataclasses.replace(spec, physics_dt=float(model.opt.timestep))  # the record says the step taken
     substeps = spec.params.control_dt / model.opt.timestep
     if substeps < 1 or abs(substeps - round(substeps)) > 1e-6:
         raise ValueError(f"control period {spec.params.control_dt} s is not a whole number of "

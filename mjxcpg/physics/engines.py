@@ -45,6 +45,12 @@ _ROBOTS_PER_THREAD = 8
 _CPU_SLICE = 32  # MJX on the CPU steps at most this many robots in one vmap (MjxEngine._map)
 
 
+def _one_cpu_device() -> bool:
+    """Whether this process's XLA runs on one CPU device, where the C engines may write into
+    XLA's own buffers (in a host callback or inside XLA)."""
+    return jax.default_backend() == "cpu" and jax.local_device_count() == 1
+
+
 def default_engine() -> str:
     """MJX when JAX sees an accelerator, the native C batch otherwise."""
     return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "native"
@@ -124,7 +130,7 @@ class _CEngine(Engine):
             inputs.append(pelvis_force.astype(jnp.float32))
         outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
                    jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
-        if jax.default_backend() == "cpu" and jax.local_device_count() == 1:
+        if _one_cpu_device():
             # The host writes the stepped rows straight into XLA's buffers, which alias the
             # inputs, so idle robots cost no copy and nothing is packed or allocated.  (Over
             # several devices, buffer_callback runs once per device: there the batch goes to one
@@ -223,9 +229,8 @@ class NativeEngine(_CEngine):
         """Below the batch that uses the threads, MuJoCo C inside XLA (``native_step``),
         when it could be built; otherwise, and with ``pelvis_force``, the host callback."""
         batch = state.physics.shape[0]
-        small = batch < _ROBOTS_PER_THREAD * self.threads
-        one_cpu = jax.default_backend() == "cpu" and jax.local_device_count() == 1
-        target = native_step.step_handler() if small and one_cpu and pelvis_force is None else None
+        in_xla = not self._threaded(batch) and _one_cpu_device() and pelvis_force is None
+        target = native_step.step_handler() if in_xla else None
         if target is None:
             return super().step(state, ctrl, active, pelvis_force)
         outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
@@ -247,8 +252,7 @@ class NativeEngine(_CEngine):
             xfrc[:, self.pelvis, :3] = pelvis_force
             ctrl = np.concatenate([ctrl, xfrc.reshape(batch, -1)], axis=1)
         control = np.broadcast_to(ctrl[:, None, :], (batch, self.substeps, ctrl.shape[1])).astype(np.float64)
-        threaded = batch >= _ROBOTS_PER_THREAD * self.threads
-        runner, datas = (self._pool, self._datas) if threaded else (self._inline, self._datas[:1])
+        runner, datas = (self._pool, self._datas) if self._threaded(batch) else (self._inline, self._datas[:1])
         out = self._outputs(batch)
         # The checks and allocations of ``rollout`` cost as much as a tenth of the stepping at
         # the paper's batch; the arrays here are float64, C-ordered and of the right shapes.
@@ -256,6 +260,10 @@ class NativeEngine(_CEngine):
                        control_spec=int(spec), skip_checks=True, nstep=self.substeps,
                        initial_warmstart=out.warmstart, state=out.state, sensordata=out.sensordata)
         return out.state[:, -1].copy(), out.sensordata[:, -1].copy()
+
+    def _threaded(self, batch: int) -> bool:
+        """Whether a batch this large goes to the thread pool (through the host callback)."""
+        return batch >= _ROBOTS_PER_THREAD * self.threads
 
     def _outputs(self, batch: int) -> _RolloutBuffers:
         if batch not in self._buffers:
