@@ -33,10 +33,9 @@ from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training import train
 
 _RATE_CHUNKS = 5  # chunks whose median wall time per simulated second sets a size's pace
-# A batch step's cost that does not grow with its rows, in rows: MuJoCo C under the
-# controller and learner steps 25,500 robot-steps/s at batch 1 and 87,000 at batch 27 on a
-# 2-core CPU (bench/results/2026-11-22-cpu2.json), that is 39 and 310 us per batch step:
-# 29 us + 10.4 us per row, a fixed part of about 3 rows.
+# The part of a batch step's cost that does not grow with its rows, in rows: a line through
+# the native engine's ``full`` throughput at batches 1 and 27 in ``mjxcpg bench``
+# (bench/results/2026-11-22-cpu2.json).  It only serves until a run has measured two sizes.
 FIXED_ROWS = 3.0
 
 
