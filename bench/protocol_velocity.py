@@ -1,8 +1,8 @@
 """Each final policy's 20 s velocity, from standing and after the learning trials' start.
 
 A learning trial starts with the hand-designed feedback (1-3 s) and hands over to the
-policy; the run's summary walks each final policy (its mean, no noise) from standing
-instead. This walks every learner's final policy both ways, 20 s on the run's engine:
+policy; the run's summary walks each final policy (its mean, no noise) after 2 s of it.
+This walks every learner's final policy both ways, 20 s on the run's engine:
 ``from standing`` and ``after 2 s of the hand-designed feedback`` (the middle of the
 trials' hand-over window), and prints per k_s the mean velocity with its 95% bootstrap
 interval, the walks that fell, Spearman's rho between k_s and the per-k_s means and the
@@ -30,11 +30,11 @@ def main() -> None:
     args = parser.parse_args()
     spec, sim, task, state = runs.load_run(args.run)
     chosen = runs.check_learners(spec, args.learners)
-    hand_seconds = sum(spec.trial.hand_seconds) / 2  # the middle of the trials' hand-over window
+    hand_seconds = spec.trial.walk_hand_seconds
     k_s = np.array([spec.k_s[i] for i in chosen])
     for label, start in (("from standing", 0.0), (f"after {hand_seconds:g} s of the hand-designed feedback",
                                                  hand_seconds)):
-        # The whole batch walks, as for the run's summary, whose from-standing figures this repeats.
+        # The whole batch walks, as for the run's summary, whose trial-start figures this repeats.
         walked = report.final_policy_gaits(sim, task, state, hand_seconds=start)
         gaits = [walked[i] for i in chosen]
         v = np.array([g["mean_vx"] for g in gaits])

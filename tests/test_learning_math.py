@@ -188,7 +188,9 @@ def test_td_errors():
     np.testing.assert_allclose(ac.td_error(0.3, 2.0, 1.5, 0.1, 0.5),
                                0.3 + ((1 - 0.2) * 2.0 - 1.5) / 0.1, rtol=1e-6)
     # at a fall the value is 0
-    np.testing.assert_allclose(ac.terminal_td_error(-1.0, 0.8), -1.8, rtol=1e-6)
+    np.testing.assert_allclose(ac.terminal_td_error(-1.0, 0.8, 0.1, impulse=False), -1.8, rtol=1e-6)
+    # as an impulse, delta dt over the fall's period is r_fall - V(t - dt)
+    np.testing.assert_allclose(ac.terminal_td_error(-1.0, 0.8, 0.1, impulse=True) * 0.1, -1.8, rtol=1e-6)
 
 
 def test_learner_update_rates_and_safeguards():

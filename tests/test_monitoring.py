@@ -13,7 +13,8 @@ from tensorboard.compat.proto.event_pb2 import Event
 
 from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training.events import RunEvents, read_scalars
-from mjxcpg.training.progress import (expected_total_trials, lindy_mean, remaining_seconds_simulated,
+from mjxcpg.training.progress import (expected_total_trials, lindy_mean, recent_fall_rate,
+                                      remaining_seconds_simulated, trials_to_streak,
                                       wall_seconds_left)
 
 
@@ -117,6 +118,43 @@ def test_expected_total_trials_without_longer_peers_follows_lindys_law_within_th
                                  np.array([False, False]))[1] == 4 + 19 + 5
 
 
+def test_trials_to_streak_is_the_waiting_time_for_a_run_of_successes():
+    # two heads in a row with a fair coin: 6 tosses on average, 4 after a first head
+    assert trials_to_streak(0.5, 0, 2) == pytest.approx(6.0)
+    assert trials_to_streak(0.5, 1, 2) == pytest.approx(4.0)
+    assert trials_to_streak(0.0, 5, 20) == 15 and trials_to_streak(0.3, 20, 20) == 0
+    # against simulated learners that fall with probability 0.1 per trial: the mean of 20,000
+    # waits (standard deviation about 60 trials) has a standard error of about 0.5 trial
+    rng = np.random.default_rng(0)
+    waits = []
+    for _ in range(20_000):
+        n = streak = 0
+        while streak < 20:
+            n += 1
+            streak = 0 if rng.random() < 0.1 else streak + 1
+        waits.append(n)
+    assert trials_to_streak(0.1, 0, 20) == pytest.approx(np.mean(waits), abs=2.5)   # (0.9^-20 - 1) / 0.1 = 72.3
+
+
+def test_recent_fall_rate_counts_the_last_trials_with_laplaces_rule():
+    falls = np.zeros((2, 100), bool)
+    falls[0, [0, 3]] = True
+    falls[1, :10] = True                     # falls only before its last 50 trials
+    rates = recent_fall_rate(falls, np.array([4, 60]))
+    assert rates.tolist() == pytest.approx([(2 + 1) / (4 + 2), 1 / 52])
+
+
+def test_a_learner_that_rarely_falls_is_expected_to_finish_sooner_than_lindys_law_says():
+    k_s, tts, done = np.zeros(2), np.full(2, -1), np.zeros(2, bool)
+    trials, streak = np.array([60, 60]), np.array([5, 5])
+    lindy = expected_total_trials(TRIAL, k_s, trials, streak, tts, done)
+    bounded = expected_total_trials(TRIAL, k_s, trials, streak, tts, done, np.array([0.02, 0.9]))
+    assert lindy[0] == pytest.approx(60 * (1 + math.log(100 / 60)) + 5)
+    # fall rate 0.02: (0.98^-20 - 0.98^-5) / 0.02 = 19.1 more trials to the streak, then 5
+    assert bounded[0] == pytest.approx(60 + (0.98 ** -20 - 0.98 ** -5) / 0.02 + 5)
+    assert bounded[1] == lindy[1]             # falling in 9 of 10: Lindy's guess is the smaller
+
+
 def test_remaining_seconds_count_the_streak_at_full_length():
     dt = 0.01
 
@@ -125,12 +163,13 @@ def test_remaining_seconds_count_the_streak_at_full_length():
         step: np.ndarray
         streak: np.ndarray
         trials_to_success: np.ndarray
+        falls: np.ndarray
 
     # learner 0: 10 trials of 5 s each, one still running 1 s in; 10 more expected (Lindy's
     # 10 (1 + ln 2) + 5 after success, capped by the 20-trial budget), 20 of them needed
     # fall-free: all 10 at 20 s.  Learner 1: succeeded at trial 8, 5 after.
     book = Bookkeeping(trial=np.array([10, 10]), step=np.array([100, 0]), streak=np.array([0, 2]),
-                       trials_to_success=np.array([-1, 8]))
+                       trials_to_success=np.array([-1, 8]), falls=np.ones((2, 20), bool))
     period = np.array([5100, 6000])
     seconds = remaining_seconds_simulated(TrialParams(max_trials=20, success_streak=20, trials_after_success=5,
                                                       trial_seconds=20.0), dt, np.zeros(2), book, period,

@@ -91,28 +91,36 @@ def fingerprint_by_hand(data: dict) -> np.ndarray:
 
 
 def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, tmp_path):
-    """A run whose config.json was written before ``learner.unit_slope`` and ``platform``
-    existed (both absent, their old behaviour False and QRIO): resumed, it ends as the
-    uninterrupted run; and checkpoints fingerprinted without the keys (both, or only the newer
-    ``platform``) are accepted, the fingerprints built here by hand."""
+    """A run whose config.json was written before ``learner.unit_slope``, ``platform`` and
+    ``learner.fall_impulse`` existed (all absent, their old behaviour False, QRIO and False):
+    resumed, it ends as the uninterrupted run; and checkpoints fingerprinted without the
+    newest key, the newest two, or all three are accepted, the fingerprints built here by
+    hand."""
     run = unfinished_copy(finished_quick, tmp_path)
     record = json.loads((run / "config.json").read_text())
-    del record["spec"]["learner"]["unit_slope"], record["spec"]["platform"]
+    del record["spec"]["learner"]["unit_slope"], record["spec"]["platform"], record["spec"]["learner"]["fall_impulse"]
     (run / "config.json").write_text(json.dumps(record))
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
     assert_same_results(run, finished_quick)
     spec = config.load_spec("quick")
-    before_platform = config.spec_to_dict(spec)
+    before_impulse = config.spec_to_dict(spec)
+    del before_impulse["learner"]["fall_impulse"]
+    before_platform = json.loads(json.dumps(before_impulse))
     del before_platform["platform"]
-    before_both = json.loads(json.dumps(before_platform))
-    del before_both["learner"]["unit_slope"]
+    before_all = json.loads(json.dumps(before_platform))
+    del before_all["learner"]["unit_slope"]
     accepted = checkpoints._accepted_fingerprints(spec)
-    for old in (before_platform, before_both):
+    for old in (before_impulse, before_platform, before_all):
         assert any(np.array_equal(fingerprint_by_hand(old), f) for f in accepted)
     with_slope = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, unit_slope=True))
-    assert config.earlier_spec_dicts(with_slope) == [before_platform | {
-        "learner": before_platform["learner"] | {"unit_slope": True}}]  # not before unit_slope
-    assert config.earlier_spec_dicts(dataclasses.replace(spec, platform="child")) == []
+    slope_true = {"unit_slope": True}
+    assert config.earlier_spec_dicts(with_slope) == [   # not before unit_slope
+        before_impulse | {"learner": before_impulse["learner"] | slope_true},
+        before_platform | {"learner": before_platform["learner"] | slope_true}]
+    assert config.earlier_spec_dicts(dataclasses.replace(spec, platform="child")) == [
+        before_impulse | {"platform": "child"}]   # not before platform
+    impulse = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, fall_impulse=True))
+    assert config.earlier_spec_dicts(impulse) == []
 
 
 def test_corrupted_checkpoint_is_caught_by_its_sha256(finished_quick, tmp_path):

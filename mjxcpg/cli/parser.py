@@ -132,6 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr = sub.add_parser("transfer", help="walk a run's final policies on MuJoCo C and on MJX")
     tr.add_argument("--run", required=True, help="a finished run directory")
     tr.add_argument("--seconds", type=seconds, default=20.0)
+    tr.add_argument("--walks", type=count, default=8,
+                    help="walks per policy: as learned, then with its weights moved by 1e-6 of themselves")
     tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     tr.set_defaults(handler=cmd_transfer)
 

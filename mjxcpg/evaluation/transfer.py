@@ -1,10 +1,14 @@
 """A run's final policies walked elsewhere: on every engine (MJX against MuJoCo C at the gait
 level), and on the hardware robot of ``mjxcpg.physics.hardware``.
 
-Each final policy (its mean, no noise; a control's own feedback) walks 20 s from standing
-on the native C engine and on MJX, all learners of the run in one batch per engine; the
-result is each policy's mean speed after 2 s of settling on both, their ratio, and whether
-it fell.  A run learned on one engine is walked on the other too: that is the transfer.
+On the engines, each final policy (its mean, no noise) walks 20 s as a learning trial starts
+(after the hand-designed feedback, ``TrialParams.walk_hand_seconds``), ``walks`` times: once
+as learned and ``walks - 1`` times with every weight of its mean scaled by (1 + 1e-6 n),
+n ~ N(0, 1), the same n on both engines.  Some learned gaits have no single 20 s speed: a
+change of their weights of that size, the size of float32 rounding, moves their speed by tens
+of percent on either engine alone (docs/engines.md); the mean over the walks is the figure
+the engines are compared on.  A run learned on one engine is walked on the other too: that
+is the transfer.
 """
 
 from __future__ import annotations
@@ -19,37 +23,70 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import walk
-from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.learning.learner import actor_feedback, policy_mean_feedback
 from mjxcpg.physics import hardware
-from mjxcpg.training import report, runs
+from mjxcpg.training import report, runs, train
 
 ENGINES = ("native", "mjx")
+RELATIVE_PERTURBATION = 1e-6  # of each mean weight: the size of float32 rounding
 
 
-def walk_on_engines(run_dir: Path, seconds: float = 20.0) -> dict:
-    """Walk the run's final policies on both engines; write and return ``transfer.json``."""
-    spec, record = runs.read_config(run_dir)
-    _, _, task, state = runs.load_run(run_dir)
-    gaits = {}
-    for engine in ENGINES:
-        sim = spec.simulation(engine)
-        gaits[engine] = report.final_policy_gaits(sim, task, state, seconds)
-    summary = json.loads((run_dir / "summary.json").read_text())["learners"]
+def perturbed_weights(weights, walks: int, seed: int = 0):
+    """Each learner's weights ``walks`` times in a row, the first as they are, the others with
+    every mean weight scaled by (1 + 1e-6 n), n ~ N(0, 1) drawn from ``seed``."""
+    rows = jnp.repeat(jnp.arange(weights.mean.shape[0]), walks)
+    repeated = jax.tree.map(lambda w: jnp.asarray(w)[rows], weights)
+    n = jax.random.normal(jax.random.PRNGKey(seed), repeated.mean.shape).at[::walks].set(0.0)
+    return repeated._replace(mean=repeated.mean * (1.0 + RELATIVE_PERTURBATION * n))
+
+
+def engine_speeds(spec: train.RunSpec, weights, engine: str, seconds: float, walks: int) -> np.ndarray:
+    """(learners, walks) mean speeds after settling of the final policies on ``engine``, each
+    walked as a trial starts; NaN where the walk fell."""
+    sim = spec.simulation(engine)
+    task = train.make_task(sim, spec)
+    trace = walk.walk_from_standing(sim, actor_feedback(task), perturbed_weights(weights, walks), seconds,
+                                    hand_seconds=task.trial.walk_hand_seconds)
+    speeds = [np.nan if g.fell else g.mean_vx for g in walk.summarise(trace, sim.control_dt)]
+    return np.array(speeds).reshape(-1, walks)
+
+
+def compare_engines(spec: train.RunSpec, weights, succeeded: Sequence[bool], learned_on: str,
+                    seconds: float = 20.0, walks: int = 8) -> dict:
+    """The final policies ``weights`` (one row per learner of ``spec``) walked on every engine:
+    per learner its speeds as learned and over the walks, their ratio MJX / C, and its falls;
+    over the successful policies that walk on C, the median and largest |MJX/C - 1|."""
+    speeds = {engine: engine_speeds(spec, weights, engine, seconds, walks) for engine in ENGINES}
     rows = []
-    for k, learner in enumerate(summary):
-        c, x = gaits["native"][k], gaits["mjx"][k]
-        rows.append({"learner": k, "k_s": learner["k_s"], "succeeded": learner["succeeded"],
-                     "mean_vx_c": c["mean_vx"], "mean_vx_mjx": x["mean_vx"],
-                     "mjx_over_c": x["mean_vx"] / c["mean_vx"] if c["mean_vx"] else float("nan"),
-                     "fell_c": c["fell"], "fell_mjx": x["fell"]})
-    # Speed ratios of the successful policies that walk on C (a fall or a standstill has none).
+    for k, ok in enumerate(succeeded):
+        c, x = speeds["native"][k], speeds["mjx"][k]
+        mean_c = float(np.nanmean(c)) if np.isfinite(c).any() else float("nan")
+        mean_x = float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
+        rows.append({"learner": k, "k_s": spec.k_s[k], "succeeded": bool(ok),
+                     "as_learned_c": float(c[0]), "as_learned_mjx": float(x[0]),
+                     "mean_vx_c": mean_c, "mean_vx_mjx": mean_x,
+                     "spread_c": [float(np.nanmin(c)), float(np.nanmax(c))] if np.isfinite(c).any() else None,
+                     "mjx_over_c": mean_x / mean_c if mean_c else float("nan"),
+                     "falls_c": int(np.isnan(c).sum()), "falls_mjx": int(np.isnan(x).sum()),
+                     "speeds_c": c.tolist(), "speeds_mjx": x.tolist()})
     off = np.array([abs(r["mjx_over_c"] - 1) for r in rows
-                    if r["succeeded"] and not r["fell_c"] and np.isfinite(r["mjx_over_c"])])
-    result = {"learned_on": record["engine"], "seconds": seconds, "learners": rows,
-              "compared": int(off.size),
-              "median_abs_difference": float(np.median(off)) if off.size else None,
-              "max_abs_difference": float(off.max()) if off.size else None,
-              "falls_c": sum(r["fell_c"] for r in rows), "falls_mjx": sum(r["fell_mjx"] for r in rows)}
+                    if r["succeeded"] and not r["falls_c"] and np.isfinite(r["mjx_over_c"])])
+    return {"learned_on": learned_on, "seconds": seconds, "walks": walks,
+            "hand_seconds": spec.trial.walk_hand_seconds, "learners": rows, "compared": int(off.size),
+            "median_abs_difference": float(np.median(off)) if off.size else None,
+            "max_abs_difference": float(off.max()) if off.size else None,
+            "within_3_percent": int((off <= 0.03).sum()), "within_10_percent": int((off <= 0.10).sum()),
+            "falls_c": sum(r["falls_c"] for r in rows), "falls_mjx": sum(r["falls_mjx"] for r in rows)}
+
+
+def walk_on_engines(run_dir: Path, seconds: float = 20.0, walks: int = 8) -> dict:
+    """Walk the run's final policies on both engines (``compare_engines``); write and return
+    ``transfer.json``."""
+    spec, record = runs.read_config(run_dir)
+    _, _, _, state = runs.load_run(run_dir)
+    succeeded = np.asarray(state.learners.book.trials_to_success) >= 0
+    result = compare_engines(spec, jax.device_get(state.learners.weights), succeeded, record["engine"],
+                             seconds, walks)
     (run_dir / "transfer.json").write_text(json.dumps(report.json_safe(result), indent=1))
     return result
 

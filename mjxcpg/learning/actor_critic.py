@@ -74,6 +74,9 @@ class LearnerParams:
     rate_scale: float = 0.03    # multiplies alpha, beta_mu, beta_sigma (see above)
     init_w_sigma: float = 0.0   # initial w^sigma: sigma = 0.5
     max_abs_td_error: float | None = None
+    # The fall's TD error as the integral of an impulse over its period (see
+    # ``terminal_td_error``): delta = (r_fall - V(t - dt)) / dt instead of r_fall - V(t - dt).
+    fall_impulse: bool = False
     w_sigma_bounds: tuple[float, float] | None = (-2.0, 2.0)
 
     @property
@@ -122,15 +125,20 @@ def td_error(reward: jax.Array, value: jax.Array, previous_value: jax.Array,
     return reward - value / tau + (value - previous_value) / dt
 
 
-def terminal_td_error(fall_reward: jax.Array, previous_value: jax.Array) -> jax.Array:
-    """Eq (17) at a fall, Doya's (2000) terminal condition: delta = r_fall - V(t - dt).
+def terminal_td_error(fall_reward: jax.Array, previous_value: jax.Array, dt: float,
+                      impulse: bool) -> jax.Array:
+    """Eq (17) at a fall, Doya's (2000) terminal condition: the value just before the fall
+    should equal the fall's reward (the paper's r = -1, a one-off punishment, not a rate),
+    with nothing after it.
 
-    The trial ends at a fall and nothing follows it, so the value just before the fall
-    should equal the fall's reward (the paper's r = -1, a one-off punishment, not a rate).
-    The early prototype learned with this form; the alternative, td_error with V(t) = 0,
-    gives delta = r - V(t - dt) / dt, a kick 1/dt = 125 times larger at an 8 ms period.
+    ``impulse=False``: delta = r_fall - V(t - dt), entering eqs (19) and (22) like any
+    period's delta, times dt.  ``impulse=True``: delta = (r_fall - V(t - dt)) / dt, so that
+    delta dt over the fall's period is the integral of eq (17)'s delta across a reward
+    impulse of r_fall and the value's jump to 0: the update of a continuous-time learner.
+    The first form makes a fall 1/dt = 125 times weaker at an 8 ms period.
     """
-    return fall_reward - previous_value
+    delta = fall_reward - previous_value
+    return delta / dt if impulse else delta
 
 
 def decay_trace(trace: jax.Array, grad: jax.Array, dt: float, kappa: float) -> jax.Array:
@@ -150,14 +158,18 @@ def update_weights(weights: jax.Array, delta: jax.Array, trace: jax.Array, rate:
 
 
 def learner_update(params: LearnerParams, weights: Weights, traces: Traces,
-                   delta: jax.Array, dt: float) -> Weights:
+                   delta: jax.Array, dt: float, at_fall: jax.Array | bool = False) -> Weights:
     """Eq (19) for w^c (rate alpha) and eq (22) for w^mu, w^sigma (rates beta_mu, beta_sigma).
 
     Every rate is multiplied by ``params.rate_scale``; the optional safeguards of
-    ``LearnerParams`` (``max_abs_td_error``, ``w_sigma_bounds``) apply here.
+    ``LearnerParams`` (``max_abs_td_error``, ``w_sigma_bounds``) apply here.  ``at_fall``
+    with ``params.fall_impulse`` scales the clip by 1/dt, as the impulse scales delta.
     """
     if params.max_abs_td_error is not None:
-        delta = jnp.clip(delta, -params.max_abs_td_error, params.max_abs_td_error)
+        bound = params.max_abs_td_error
+        if params.fall_impulse:
+            bound = jnp.where(at_fall, bound / dt, bound)
+        delta = jnp.clip(delta, -bound, bound)
     scale = params.rate_scale
     w_sigma = update_weights(weights.sigma, delta, traces.sigma, scale * params.beta_sigma, dt)
     if params.w_sigma_bounds is not None:

@@ -65,6 +65,13 @@ class TrialParams:
     # "zero" (a_5 = 0) or "hand" (the hand-designed feedback throughout).
     actor: str = "policy"
 
+    @property
+    def walk_hand_seconds(self) -> float:
+        """How long the hand-designed feedback acts before a final policy is walked: the middle
+        of the hand-over range, so that the policy takes over a gait already going, as in every
+        trial it learned and was tested on."""
+        return (self.hand_seconds[0] + self.hand_seconds[1]) / 2
+
 
 class Bookkeeping(NamedTuple):
     trial: jax.Array              # trials finished
@@ -214,10 +221,10 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     b = ngnet.normalized_basis(task.basis, policy_input(obs))
     previous_value = ngnet.ngnet_value(state.weights.critic, state.previous_basis)
     delta = jnp.where(
-        fell, ac.terminal_td_error(task.trial.fall_reward, previous_value),
+        fell, ac.terminal_td_error(task.trial.fall_reward, previous_value, task.dt, p.fall_impulse),
         ac.td_error(r, ngnet.ngnet_value(state.weights.critic, b), previous_value, task.dt, p.tau))
     update = acting & state.has_previous & ~frozen & (task.trial.actor == "policy")
-    weights = tree_where(update, ac.learner_update(p, state.weights, state.traces, delta, task.dt),
+    weights = tree_where(update, ac.learner_update(p, state.weights, state.traces, delta, task.dt, fell),
                          state.weights)
 
     mean = ngnet.ngnet_value(weights.mean, b)

@@ -244,7 +244,8 @@ def spec_to_dict(spec: RunSpec) -> dict:
 # Keys added to the spec after runs had been recorded (each by its path of keys), in the
 # order they were added, with the value that a run recorded without it had: such a run's
 # record is the spec without that key and every later one.
-ADDED_KEYS = {("learner", "unit_slope"): False, ("platform",): robots.DEFAULT_PLATFORM}
+ADDED_KEYS = {("learner", "unit_slope"): False, ("platform",): robots.DEFAULT_PLATFORM,
+              ("learner", "fall_impulse"): False}
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:

@@ -8,8 +8,12 @@ has (else of any k_s).  When none has, the trials to success are taken as scale-
 (Lindy's law, a Pareto tail of index 1: a learner that has not succeeded in t trials is as
 likely to need more than 2t as fewer), whose mean within a budget B is t (1 + ln(B / t));
 then the trials after success.  The times to success of this project's learners are
-heavy-tailed in just this way (a few k_s = 0 learners take ten times the others).  Never
-fewer than the fall-free streak it still needs, never more than the budget.  Its remaining
+heavy-tailed in just this way (a few k_s = 0 learners take ten times the others).  A
+learner's own recent falls bound that guess: at its fall rate of the last
+``RECENT_TRIALS`` trials, the streak it needs takes ``trials_to_streak`` trials on average,
+and whichever of the two is smaller is taken (both overestimate a learner that is still
+learning not to fall).  Never fewer than the fall-free streak it still needs, never more
+than the budget.  Its remaining
 trials last as long as its trials so far did on average, except that streak, whose trials
 run to full length.
 
@@ -37,11 +41,14 @@ _RATE_CHUNKS = 5  # chunks whose median wall time per simulated second sets a si
 # the native engine's ``full`` throughput at batches 1 and 27 in ``mjxcpg bench``
 # (bench/results/2026-11-22-cpu2.json).  It only serves until a run has measured two sizes.
 FIXED_ROWS = 3.0
+RECENT_TRIALS = 50  # the trials whose falls give a learner's current fall rate
 
 
 def expected_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray, streak: np.ndarray,
-                          trials_to_success: np.ndarray, done: np.ndarray) -> np.ndarray:
-    """Per learner, its expected number of trials when it finishes (exact once it is done)."""
+                          trials_to_success: np.ndarray, done: np.ndarray,
+                          fall_rate: np.ndarray | None = None) -> np.ndarray:
+    """Per learner, its expected number of trials when it finishes (exact once it is done);
+    ``fall_rate``, each learner's recent fall rate, bounds the guess (module docstring)."""
     totals = trials.astype(np.float64)
     for i in np.flatnonzero(~done):
         if trials_to_success[i] >= 0:
@@ -51,6 +58,9 @@ def expected_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarra
         same_k_s = longer & (k_s == k_s[i])
         peers = trials[same_k_s if same_k_s.any() else longer]
         guess = peers.mean() if peers.size else lindy_mean(trials[i], trial.max_trials) + trial.trials_after_success
+        if fall_rate is not None:
+            guess = min(guess, trials[i] + trials_to_streak(fall_rate[i], streak[i], trial.success_streak)
+                        + trial.trials_after_success)
         least = trials[i] + trial.success_streak - streak[i] + trial.trials_after_success
         totals[i] = min(max(guess, least), trial.max_trials)
     return totals
@@ -60,6 +70,30 @@ def lindy_mean(trials: float, budget: float) -> float:
     """The mean of min(T, budget) for T with P(T > x) = trials / x beyond ``trials`` (a Pareto
     tail of index 1): trials (1 + ln(budget / trials)); 0 before the first trial."""
     return trials * (1.0 + np.log(budget / trials)) if 0 < trials < budget else float(min(trials, budget))
+
+
+def trials_to_streak(fall_rate: float, streak: int, needed: int) -> float:
+    """The expected trials until ``needed`` successive trials without a fall, from a streak of
+    ``streak``, when each trial falls with probability p = ``fall_rate`` independently:
+    (q^-needed - q^-streak) / p with q = 1 - p (the waiting time for a run of successes)."""
+    if streak >= needed:
+        return 0.0
+    if fall_rate <= 0:
+        return float(needed - streak)
+    if fall_rate >= 1:
+        return float("inf")
+    q = 1.0 - fall_rate
+    return (q ** -needed - q ** -streak) / fall_rate
+
+
+def recent_fall_rate(falls: np.ndarray, trials: np.ndarray) -> np.ndarray:
+    """Per learner, (falls + 1) / (n + 2) over its last n = min(trials, ``RECENT_TRIALS``)
+    trials (Laplace's rule: never exactly 0 or 1); ``falls``: (learners, budget) per trial."""
+    rates = np.empty(len(trials))
+    for i, n in enumerate(trials):
+        recent = np.asarray(falls[i, max(0, n - RECENT_TRIALS):n], np.float64)
+        rates[i] = (recent.sum() + 1.0) / (recent.size + 2.0)
+    return rates
 
 
 def wall_seconds_left(remaining: np.ndarray, batch: int, cost: Callable[[int], float]) -> float:
@@ -80,7 +114,8 @@ def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, 
     bookkeeping on the host; ``period``: control periods each learner has run)."""
     trials = np.asarray(book.trial)
     streak, trials_to_success = np.asarray(book.streak), np.asarray(book.trials_to_success)
-    remaining = expected_total_trials(trial, k_s, trials, streak, trials_to_success, done) - trials
+    fall_rate = recent_fall_rate(np.asarray(book.falls), trials)
+    remaining = expected_total_trials(trial, k_s, trials, streak, trials_to_success, done, fall_rate) - trials
     finished_seconds = (np.asarray(period) - np.asarray(book.step)) * dt
     mean_length = np.where(trials > 0, finished_seconds / np.maximum(trials, 1), trial.trial_seconds)
     streak_left = np.where(trials_to_success >= 0, 0, np.maximum(trial.success_streak - streak, 0))

@@ -21,10 +21,13 @@ PAPER_TABLE1 = {0.0: (4, 1, 2385), 1.0: (3, 3, 528), 2.0: (3, 3, 195), 3.0: (4, 
 
 
 def final_policy_gaits(sim, task, state: train.RunState, seconds: float = 20.0,
-                       hand_seconds: float = 0.0) -> list[dict]:
+                       hand_seconds: float | None = None) -> list[dict]:
     """Every learner's final policy (mean, no noise; a control's own feedback) walks
-    ``seconds``, all in one batch: from standing, or after ``hand_seconds`` of the
-    hand-designed feedback, as a learning trial starts."""
+    ``seconds``, all in one batch, after ``hand_seconds`` of the hand-designed feedback:
+    by default as a learning trial starts (``TrialParams.walk_hand_seconds``); 0 walks it
+    from standing."""
+    if hand_seconds is None:
+        hand_seconds = task.trial.walk_hand_seconds
     # On one device: this walk, unlike the learning, is not bit-stable under sharding.
     trace = walk.walk_from_standing(sim, actor_feedback(task), jax.device_get(state.learners.weights),
                                     seconds, hand_seconds=hand_seconds)
@@ -75,7 +78,8 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
             plots.learning_curves([r for r in results if r["k_s"] == k_s],
                                   out / f"learning_curve_ks{k_s:g}.png", title=f"k_s = {k_s:g} (cf. Fig 4)")
         plots.diagnostics(results, out / "diagnostics.png")
-    summary = {"engine": sim.engine.name, "success_streak": spec.trial.success_streak, "learners": learners}
+    summary = {"engine": sim.engine.name, "success_streak": spec.trial.success_streak,
+               "walk": {"seconds": 20.0, "hand_seconds": task.trial.walk_hand_seconds}, "learners": learners}
     write_text_atomic(out / "returns.json", json.dumps(results))
     write_table1(out, summary)
     # Last: a run directory with summary.json is finished, and holds all of its results.
