@@ -372,20 +372,24 @@ def test_mjx_slices_on_the_cpu_step_like_one_vmap(monkeypatch):
     np.testing.assert_allclose(sliced.qvel, whole.qvel, atol=1e-3)
 
 
-def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit():
-    """The FFI handler makes the host callback's MuJoCo calls: 100 control periods of three
-    robots, one idle (kept as it was) and one thrown so hard that MuJoCo diverges (NaN),
-    give identical arrays on both paths."""
+@pytest.mark.parametrize("threaded", [False, True], ids=["one thread", "the threads"])
+def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit(threaded):
+    """The FFI handler makes the host callback's MuJoCo calls: 100 control periods of a batch,
+    one robot idle (kept as it was) and one thrown so hard that MuJoCo diverges (NaN), give
+    identical arrays on both paths: three robots on one thread, and a batch split unevenly
+    over the threads (one more robot than the threads start at)."""
     if native_step.step_handler() is None:
         pytest.skip("no C++ compiler: the native engine has only its host callback here")
     sim = make_simulation("native")
     engine = sim.engine
-    start = engine.init(sim.qpos0, 3)
+    batch = engines._ROBOTS_PER_THREAD * engine.threads + 1 if threaded else 3
+    assert engine._threaded(batch) == threaded
+    start = engine.init(sim.qpos0, batch)
     nq = sim.model.nq
     start = start._replace(physics=start.physics.at[1, 1 + nq + 2].set(1e12))  # robot 1: a huge vertical speed
     standing = joint_targets(sim.params, sim.layout, jnp.zeros(6))
-    ctrls = standing + 0.2 * jnp.sin(jnp.arange(100.0)[:, None, None] / 7 + jnp.arange(3.0)[None, :, None])
-    active = jnp.array([True, True, False])
+    ctrls = standing + 0.2 * jnp.sin(jnp.arange(100.0)[:, None, None] / 7 + jnp.arange(float(batch))[None, :, None])
+    active = jnp.ones(batch, bool).at[2].set(False)
 
     def rollout(step):
         return jax.jit(lambda s, us: jax.lax.scan(lambda x, u: (step(x, u, active), x.physics), s, us))(start, ctrls)
@@ -396,4 +400,5 @@ def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit():
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     final, _ = in_xla
     assert np.isnan(np.asarray(final.physics[1])).all() and np.isfinite(np.asarray(final.physics[0])).all()
+    assert np.isfinite(np.asarray(final.physics[3:])).all()
     np.testing.assert_array_equal(np.asarray(final.physics[2]), np.asarray(start.physics[2]))

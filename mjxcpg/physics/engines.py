@@ -39,8 +39,8 @@ ENGINES = ("mujoco", "native", "mjx")
 _FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CTRL_AND_XFRC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 # The native engine uses its threads from this many robots per thread; below, one thread steps
-# the batch inside XLA, since handing 4 robots to each of 2 threads gained nothing over one
-# thread (``mjxcpg bench``'s physics at batches 4 and 8).
+# the whole batch, since handing 4 robots to each of 2 threads gained nothing over one thread
+# (``mjxcpg bench``'s physics at batches 4 and 8).
 _ROBOTS_PER_THREAD = 8
 _CPU_SLICE = 32  # MJX on the CPU steps at most this many robots in one vmap (MjxEngine._map)
 
@@ -222,14 +222,18 @@ class NativeEngine(_CEngine):
         self._pool = rollout.Rollout(nthread=self.threads if self.threads > 1 else 0)
         self._inline = rollout.Rollout(nthread=0)  # small batches: thread hand-offs cost more than they save
         self._buffers: dict[int, _RolloutBuffers] = {}
-        self._ffi_data = mujoco.MjData(model)  # the FFI handler's (XLA runs one call at a time)
+        # The FFI handler's: one MjData per thread, passed by the address of their addresses
+        # (XLA runs one call at a time).
+        self._ffi_datas = [mujoco.MjData(model) for _ in range(self.threads)]
+        self._ffi_addresses = np.array([d._address for d in self._ffi_datas], np.int64)
 
     def step(self, state: CState, ctrl: jax.Array, active: jax.Array | None = None,
              pelvis_force: jax.Array | None = None) -> CState:
-        """Below the batch that uses the threads, MuJoCo C inside XLA (``native_step``),
-        when it could be built; otherwise, and with ``pelvis_force``, the host callback."""
+        """MuJoCo C inside XLA (``native_step``), on the threads from the batch that uses
+        them, when the handler could be built; otherwise, and with ``pelvis_force``, the host
+        callback."""
         batch = state.physics.shape[0]
-        in_xla = not self._threaded(batch) and _one_cpu_device() and pelvis_force is None
+        in_xla = _one_cpu_device() and pelvis_force is None
         target = native_step.step_handler() if in_xla else None
         if target is None:
             return super().step(state, ctrl, active, pelvis_force)
@@ -239,8 +243,8 @@ class NativeEngine(_CEngine):
                                                vmap_method="sequential")(
             state.physics, state.sensordata, ctrl.astype(jnp.float32),
             jnp.ones(batch, bool) if active is None else active,
-            model=np.int64(self.model._address), data=np.int64(self._ffi_data._address),
-            substeps=np.int64(self.substeps))
+            model=np.int64(self.model._address), datas=np.int64(self._ffi_addresses.ctypes.data),
+            threads=np.int64(self.threads if self._threaded(batch) else 1), substeps=np.int64(self.substeps))
         return CState(physics=physics, sensordata=sensordata)
 
     def _simulate(self, physics, ctrl, pelvis_force=None):
@@ -262,7 +266,7 @@ class NativeEngine(_CEngine):
         return out.state[:, -1].copy(), out.sensordata[:, -1].copy()
 
     def _threaded(self, batch: int) -> bool:
-        """Whether a batch this large goes to the thread pool (through the host callback)."""
+        """Whether a batch this large is split over the threads."""
         return batch >= _ROBOTS_PER_THREAD * self.threads
 
     def _outputs(self, batch: int) -> _RolloutBuffers:

@@ -5,9 +5,13 @@
 // callback's mujoco.rollout (state set, warm start cleared, warning counters cleared, then
 // per substep: stop at a warning, set the controls, mj_step) and the same divergence test,
 // inside XLA's own call, with no Python.  mjxcpg/physics/native_step.py compiles and loads it.
+// A large batch is split into contiguous blocks of rows, one per thread, each thread with its
+// own mjData; every row's result is the same whichever thread steps it.
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <thread>
 #include <vector>
 
 #include <mujoco/mujoco.h>
@@ -25,28 +29,15 @@ bool AnyWarning(const mjData* d) {
   return false;
 }
 
-// Rows with ``active`` set: the state after ``substeps`` steps under ``ctrl`` (the servo
-// targets), or NaN where MuJoCo diverged (its clock did not advance by the control period,
-// or the state is not finite).  Other rows keep their values (the outputs alias the inputs).
-ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
-                ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
-                ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
-                int64_t model_address, int64_t data_address, int64_t substeps) {
-  const mjModel* m = reinterpret_cast<const mjModel*>(model_address);
-  mjData* d = reinterpret_cast<mjData*>(data_address);
+// Rows [first, last) with ``active`` set: the state after ``substeps`` steps under ``ctrl``
+// (the servo targets), or NaN where MuJoCo diverged (its clock did not advance by the control
+// period, or the state is not finite).  Other rows keep their values (the outputs alias the
+// inputs).
+void StepRows(const mjModel* m, mjData* d, int64_t first, int64_t last, int64_t substeps,
+              const float* state_in, const float* sensors_in, const float* ctrl_in,
+              const bool* active_in, float* state_out, float* sensors_out) {
   const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
   const int nsensordata = m->nsensordata, nu = m->nu;
-  const int64_t batch = active.element_count();
-  if (physics.element_count() != batch * nstate || sensordata.element_count() != batch * nsensordata ||
-      ctrl.element_count() != batch * nu) {
-    return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
-  }
-  const float* state_in = physics.typed_data();
-  const float* sensors_in = sensordata.typed_data();
-  const float* ctrl_in = ctrl.typed_data();
-  const bool* active_in = active.typed_data();
-  float* state_out = physics_out->typed_data();
-  float* sensors_out = sensordata_out->typed_data();
   std::vector<mjtNum> start(nstate), stepped(nstate), controls(nu);
   const double expected = substeps * m->opt.timestep;
 
@@ -55,7 +46,7 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
   mju_zero(d->xfrc_applied, 6 * m->nbody);
   for (int i = 0; i < m->neq; i++) d->eq_active[i] = m->eq_active0[i];
 
-  for (int64_t r = 0; r < batch; r++) {
+  for (int64_t r = first; r < last; r++) {
     float* row_out = state_out + r * nstate;
     float* sensors_row_out = sensors_out + r * nsensordata;
     if (state_out != state_in) std::copy(state_in + r * nstate, state_in + (r + 1) * nstate, row_out);
@@ -82,6 +73,31 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
       sensors_row_out[i] = diverged ? NAN : static_cast<float>(d->sensordata[i]);
     }
   }
+}
+
+// ``datas``: the address of an array of ``threads`` mjData addresses.  The batch is split into
+// ``threads`` blocks of nearly equal size; the calling thread steps the first.
+ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
+                ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
+                ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
+                int64_t model_address, int64_t datas, int64_t threads, int64_t substeps) {
+  const mjModel* m = reinterpret_cast<const mjModel*>(model_address);
+  mjData* const* data = reinterpret_cast<mjData* const*>(datas);
+  const int64_t batch = active.element_count();
+  if (physics.element_count() != batch * mj_stateSize(m, mjSTATE_FULLPHYSICS) ||
+      sensordata.element_count() != batch * m->nsensordata || ctrl.element_count() != batch * m->nu) {
+    return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
+  }
+  const int64_t blocks = std::max<int64_t>(1, std::min(threads, batch));
+  auto block = [&](int64_t k) {
+    StepRows(m, data[k], batch * k / blocks, batch * (k + 1) / blocks, substeps, physics.typed_data(),
+             sensordata.typed_data(), ctrl.typed_data(), active.typed_data(), physics_out->typed_data(),
+             sensordata_out->typed_data());
+  };
+  std::vector<std::thread> others;
+  for (int64_t k = 1; k < blocks; k++) others.emplace_back(block, k);
+  block(0);
+  for (auto& t : others) t.join();
   return ffi::Error::Success();
 }
 
@@ -96,5 +112,6 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(MjxcpgMujocoStep, Step,
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Attr<int64_t>("model")
-                                  .Attr<int64_t>("data")
+                                  .Attr<int64_t>("datas")
+                                  .Attr<int64_t>("threads")
                                   .Attr<int64_t>("substeps"));
