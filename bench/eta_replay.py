@@ -1,0 +1,61 @@
+"""The progress line's estimate of trials left, replayed from a finished run's events.
+
+At 10%, 50% and 90% of the run's wall time (as ``bench/eta_accuracy.py``), each learner's
+trials and falls up to then are read back from its TensorBoard events, and
+``progress.expected_total_trials`` gives its trials left: from its finished peers or Lindy's
+law, without the fall-rate bound, then bounded by the streak its fall rate over the last 50
+trials (the progress line's) or 20 trials predicts. Printed for the learner
+that in fact had the most trials left (the run's critical path), beside that true figure.
+
+    NPROC=1 .venv/bin/python bench/eta_replay.py runs/paper
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mjxcpg.training import progress, runs
+from mjxcpg.training.events import read_events
+
+FRACTIONS = (0.1, 0.5, 0.9)
+
+
+def replay(run: Path) -> None:
+    spec, _ = runs.read_config(run)
+    trial, k_s = spec.trial, np.array(spec.k_s)
+    folders = sorted(p for p in (run / "tensorboard").iterdir() if p.name.startswith("learner_"))
+    events = [[(wall, values["trial/fell"] > 0.5) for wall, _, values in read_events(f)] for f in folders]
+    total = np.array([len(e) for e in events])
+    walls = sorted({wall for e in events for wall, _ in e})
+    print(f"{run}\n| at | learner | trials then | trials left | peers or Lindy | bounded, last 50 | last 20 |\n"
+          "|---|---|---|---|---|---|---|")
+    for fraction in FRACTIONS:
+        then = walls[0] + fraction * (walls[-1] - walls[0])
+        trials = np.array([sum(wall <= then for wall, _ in e) for e in events])
+        falls = np.zeros((len(events), trial.max_trials), bool)
+        streak, to_success = np.zeros(len(events), int), np.full(len(events), -1)
+        for i, e in enumerate(events):
+            for n, (_, fell) in enumerate(e[:trials[i]]):
+                falls[i, n] = fell
+                streak[i] = 0 if fell else streak[i] + 1
+                if streak[i] >= trial.success_streak and to_success[i] < 0:
+                    to_success[i] = n + 1
+        done = trials >= total
+        critical = int(np.argmax(total - trials))
+        guesses = []
+        for window in (None, 50, 20):
+            rate = None
+            if window:
+                progress.RECENT_TRIALS, kept = window, progress.RECENT_TRIALS
+                rate = progress.recent_fall_rate(falls, trials)
+                progress.RECENT_TRIALS = kept
+            guesses.append(progress.expected_total_trials(trial, k_s, trials, streak, to_success, done, rate)
+                           [critical] - trials[critical])
+        print(f"| {fraction:.0%} | {critical} | {trials[critical]} | {total[critical] - trials[critical]} | "
+              + " | ".join(f"{g:.0f}" for g in guesses) + " |")
+
+
+if __name__ == "__main__":
+    for run in sys.argv[1:]:
+        replay(Path(run))
