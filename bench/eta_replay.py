@@ -24,7 +24,9 @@ FRACTIONS = (0.1, 0.5, 0.9)
 def replay(run: Path) -> None:
     spec, _ = runs.read_config(run)
     trial, k_s = spec.trial, np.array(spec.k_s)
-    folders = sorted(p for p in (run / "tensorboard").iterdir() if p.name.startswith("learner_"))
+    # learner_KK_ks..._seed...: in the order of the run's learners, by KK
+    folders = sorted((p for p in (run / "tensorboard").iterdir() if p.name.startswith("learner_")),
+                     key=lambda p: int(p.name.split("_")[1]))
     events = [[(wall, values["trial/fell"] > 0.5) for wall, _, values in read_events(f)] for f in folders]
     total = np.array([len(e) for e in events])
     walls = sorted({wall for e in events for wall, _ in e})
@@ -47,9 +49,7 @@ def replay(run: Path) -> None:
         for window in (None, 50, 20):
             rate = None
             if window:
-                progress.RECENT_TRIALS, kept = window, progress.RECENT_TRIALS
-                rate = progress.recent_fall_rate(falls, trials)
-                progress.RECENT_TRIALS = kept
+                rate = progress.recent_fall_rate(falls, trials, window)
             guesses.append(progress.expected_total_trials(trial, k_s, trials, streak, to_success, done, rate)
                            [critical] - trials[critical])
         print(f"| {fraction:.0%} | {critical} | {trials[critical]} | {total[critical] - trials[critical]} | "

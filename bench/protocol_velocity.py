@@ -35,7 +35,7 @@ def main() -> None:
     for label, start in (("from standing", 0.0), (f"after {hand_seconds:g} s of the hand-designed feedback",
                                                  hand_seconds)):
         # The whole batch walks, as for the run's summary, whose trial-start figures this repeats.
-        walked = report.final_policy_gaits(sim, task, state, hand_seconds=start)
+        walked = report.final_policy_gaits(sim, task, state.learners.weights, hand_seconds=start)
         gaits = [walked[i] for i in chosen]
         v = np.array([g["mean_vx"] for g in gaits])
         fell = np.array([g["fell"] for g in gaits])

@@ -31,9 +31,7 @@ def main() -> None:
     spec = dataclasses.replace(spec, k_s=tuple(spec.k_s[k] for k in chosen), seeds=tuple(spec.seeds[k] for k in chosen))
     weights = Weights(critic=saved["critic"][chosen], mean=saved["mean"][chosen], sigma=saved["sigma"][chosen])
     result = transfer.compare_engines(spec, weights, saved["trials_to_success"][chosen] >= 0, record["engine"],
-                                      walks=args.walks)
-    for r in result["learners"]:
-        r["learner"] = int(chosen[r["learner"]])
+                                      walks=args.walks, learners=chosen.tolist())
     for r in result["learners"]:
         print(f"learner {r['learner']:3d}  k_s {r['k_s']:4g}  C {r['mean_vx_c']:.4f}  MJX {r['mean_vx_mjx']:.4f}"
               f"  MJX/C {r['mjx_over_c']:.3f}  falls C {r['falls_c']} MJX {r['falls_mjx']}")

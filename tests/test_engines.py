@@ -375,21 +375,23 @@ def test_mjx_slices_on_the_cpu_step_like_one_vmap(monkeypatch):
 @pytest.mark.parametrize("threaded", [False, True], ids=["one thread", "the threads"])
 def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit(threaded):
     """The FFI handler makes the host callback's MuJoCo calls: 100 control periods of a batch,
-    one robot idle (kept as it was) and one thrown so hard that MuJoCo diverges (NaN), give
-    identical arrays on both paths: three robots on one thread, and a batch split unevenly
-    over the threads (one more robot than the threads start at)."""
+    with robots idle (kept as they were) and robots thrown so hard that MuJoCo diverges (NaN),
+    give identical arrays on both paths: five robots on one thread, and a batch split unevenly
+    over 3 threads (one more robot than they start at), an idle and a diverging robot in its
+    first block and in its last."""
     if native_step.step_handler() is None:
         pytest.skip("no C++ compiler: the native engine has only its host callback here")
     sim = make_simulation("native")
-    engine = sim.engine
-    batch = engines._ROBOTS_PER_THREAD * engine.threads + 1 if threaded else 3
+    engine = engines.NativeEngine(sim.model, sim.engine.substeps, threads=3)
+    batch = engines._ROBOTS_PER_THREAD * engine.threads + 1 if threaded else 5
     assert engine._threaded(batch) == threaded
     start = engine.init(sim.qpos0, batch)
     nq = sim.model.nq
-    start = start._replace(physics=start.physics.at[1, 1 + nq + 2].set(1e12))  # robot 1: a huge vertical speed
+    # robots 1 and the last: a huge vertical speed; robots 2 and the one before the last: idle
+    start = start._replace(physics=start.physics.at[jnp.array([1, batch - 1]), 1 + nq + 2].set(1e12))
     standing = joint_targets(sim.params, sim.layout, jnp.zeros(6))
     ctrls = standing + 0.2 * jnp.sin(jnp.arange(100.0)[:, None, None] / 7 + jnp.arange(float(batch))[None, :, None])
-    active = jnp.ones(batch, bool).at[2].set(False)
+    active = jnp.ones(batch, bool).at[jnp.array([2, batch - 2])].set(False)
 
     def rollout(step):
         return jax.jit(lambda s, us: jax.lax.scan(lambda x, u: (step(x, u, active), x.physics), s, us))(start, ctrls)
@@ -399,6 +401,8 @@ def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit(threaded):
     for a, b in zip(jax.tree.leaves(in_xla), jax.tree.leaves(callback)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     final, _ = in_xla
-    assert np.isnan(np.asarray(final.physics[1])).all() and np.isfinite(np.asarray(final.physics[0])).all()
-    assert np.isfinite(np.asarray(final.physics[3:])).all()
-    np.testing.assert_array_equal(np.asarray(final.physics[2]), np.asarray(start.physics[2]))
+    diverged, idle = [1, batch - 1], [2, batch - 2]
+    assert np.isnan(np.asarray(final.physics[jnp.array(diverged)])).all()
+    others = np.setdiff1d(np.arange(batch), diverged + idle)
+    assert np.isfinite(np.asarray(final.physics[others])).all()
+    np.testing.assert_array_equal(np.asarray(final.physics[jnp.array(idle)]), np.asarray(start.physics[jnp.array(idle)]))

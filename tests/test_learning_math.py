@@ -207,6 +207,15 @@ def test_learner_update_rates_and_safeguards():
     new = ac.learner_update(guarded, weights, traces, jnp.float32(100.0), 0.01)
     np.testing.assert_allclose(new.critic, 0.78, rtol=1e-5)
     np.testing.assert_allclose(new.sigma, 1.0, rtol=1e-6)
+    # a fall as an impulse: its delta is (r - V) / dt, and the clip scales with it, so a fall's
+    # delta of -1.8 / 0.01 = -180 passes a clip of 10 / 0.01 = 1000 whole: 7.8 x -1.8 x 0.1 ...
+    impulse = ac.LearnerParams(rate_scale=0.1, max_abs_td_error=10.0, fall_impulse=True, w_sigma_bounds=None)
+    fall = ac.terminal_td_error(-1.0, 0.8, 0.01, impulse=True)
+    new = ac.learner_update(impulse, weights, traces, fall, 0.01, at_fall=True)
+    np.testing.assert_allclose(new.critic, 78 * 0.1 * -180 * 0.01, rtol=1e-5)   # alpha x scale x delta x dt
+    # ... while the same delta outside a fall is clipped at 10
+    new = ac.learner_update(impulse, weights, traces, fall, 0.01, at_fall=False)
+    np.testing.assert_allclose(new.critic, 78 * 0.1 * -10 * 0.01, rtol=1e-5)
 
 
 def _critic_step(params, dt, weights, traces, b, b_prev, reward, noise, cached_value=None):

@@ -10,12 +10,13 @@ from learned_run import make_learned_run
 from mjxcpg.cli import main
 from mjxcpg.evaluation import transfer
 from mjxcpg.learning.actor_critic import Weights
+from mjxcpg.training import train
 
 
 def test_perturbed_weights_repeat_each_learner_the_first_walk_as_learned():
     mean = jnp.arange(1.0, 7.0).reshape(2, 3)
     weights = Weights(critic=jnp.zeros((2, 3)), mean=mean, sigma=jnp.array([0.1, 0.2]))
-    walked = transfer.perturbed_weights(weights, walks=4)
+    walked = transfer.perturbed_weights(weights, walks=4, learners=[5, 9])
     assert walked.mean.shape == (8, 3) and walked.sigma.tolist() == pytest.approx([0.1] * 4 + [0.2] * 4)
     expected = np.repeat(np.asarray(mean), 4, axis=0)
     np.testing.assert_array_equal(walked.mean[::4], mean)  # as learned
@@ -24,6 +25,27 @@ def test_perturbed_weights_repeat_each_learner_the_first_walk_as_learned():
     # once in 1e7); float32 rounds a weight near 1-6 by at most 6e-8 of itself
     others = np.delete(relative, [0, 4], axis=0)
     assert (others > 0).mean() > 0.5 and others.max() < 6e-6 + 6e-8
+    # a learner's walks are the same whichever learners share its batch
+    alone = transfer.perturbed_weights(weights._replace(mean=mean[1:], critic=weights.critic[1:],
+                                                        sigma=weights.sigma[1:]), walks=4, learners=[9])
+    np.testing.assert_array_equal(alone.mean, walked.mean[4:])
+
+
+def test_compare_engines_leaves_out_policies_that_fall_on_either_engine(monkeypatch):
+    """Three successful policies, two walks each (speeds given, not walked): one agrees, one
+    is 20% faster on MJX, one falls once on MJX; only the first two are compared."""
+    speeds = {"native": np.array([[0.05, 0.07], [0.05, 0.05], [0.06, 0.06]]),
+              "mjx": np.array([[0.06, 0.06], [0.06, 0.06], [0.06, np.nan]])}
+    monkeypatch.setattr(transfer, "engine_speeds", lambda spec, weights, learners, engine, seconds, walks:
+                        speeds[engine])
+    spec = train.RunSpec(k_s=(1.0, 2.0, 3.0), seeds=(0, 1, 2))
+    result = transfer.compare_engines(spec, None, [True, True, True], "native", walks=2, learners=[4, 5, 6])
+    assert [r["learner"] for r in result["learners"]] == [4, 5, 6]
+    assert result["successful_that_fell"] == [6] and result["compared"] == 2
+    assert result["learners"][0]["mjx_over_c"] == pytest.approx(1.0)
+    assert result["learners"][2]["mean_vx_mjx"] == pytest.approx(0.06)      # over its upright walk
+    assert result["median_abs_difference"] == pytest.approx(0.1)           # 0 and 0.2
+    assert result["max_abs_difference"] == pytest.approx(0.2) and result["within_10_percent"] == 1
 
 
 @pytest.mark.slow

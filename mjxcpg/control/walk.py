@@ -100,7 +100,10 @@ class GaitSummary:
         return dataclasses.asdict(self)
 
 
-def summarise(trace: Trace, control_dt: float, settle_s: float = 2.0) -> list[GaitSummary]:
+SETTLE_SECONDS = 2.0  # what ``summarise`` leaves out of a walk's start by default
+
+
+def summarise(trace: Trace, control_dt: float, settle_s: float = SETTLE_SECONDS) -> list[GaitSummary]:
     """Per robot: did it fall, simulated time before the fall, and, after ``settle_s`` and
     before any fall, the mean forward speed, the mean pelvis height and the gait period
     (a gait cycle is one period of the lateral sway: upward zero crossings of pelvis roll)."""

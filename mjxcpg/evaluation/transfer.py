@@ -1,14 +1,18 @@
 """A run's final policies walked elsewhere: on every engine (MJX against MuJoCo C at the gait
 level), and on the hardware robot of ``mjxcpg.physics.hardware``.
 
-On the engines, each final policy (its mean, no noise) walks 20 s as a learning trial starts
-(after the hand-designed feedback, ``TrialParams.walk_hand_seconds``), ``walks`` times: once
-as learned and ``walks - 1`` times with every weight of its mean scaled by (1 + 1e-6 n),
-n ~ N(0, 1), the same n on both engines.  Some learned gaits have no single 20 s speed: a
-change of their weights of that size, the size of float32 rounding, moves their speed by tens
-of percent on either engine alone (docs/engines.md); the mean over the walks is the figure
-the engines are compared on.  A run learned on one engine is walked on the other too: that
-is the transfer.
+On the engines, each final policy (its mean, no noise) walks as in the run's report: 20 s,
+the first 2 s with the hand-designed feedback as a learning trial starts, its speed measured
+over the policy's 18 s (``report.final_policy_gaits``).  It walks ``walks`` times: once as
+learned and ``walks - 1`` times with every weight of its mean scaled by (1 + 1e-6 n),
+n ~ N(0, 1), the same n on both engines and for the same learner in any batch.  Some learned
+gaits have no single 20 s speed: a change of their weights of that size (about 8 times
+float32's unit roundoff) moves their speed by tens of percent on either engine alone
+(docs/engines.md); the mean over the walks is the figure the engines are compared on.  A run
+learned on one engine is walked on the other too: that is the transfer.
+
+On the hardware robot (``walk_policies``, ``hardware_transfer``) each policy walks from
+standing, unlike the run's report (docs/hardware.md).
 """
 
 from __future__ import annotations
@@ -23,63 +27,77 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import walk
-from mjxcpg.learning.learner import actor_feedback, policy_mean_feedback
+from mjxcpg.learning.learner import policy_mean_feedback
 from mjxcpg.physics import hardware
 from mjxcpg.training import report, runs, train
 
 ENGINES = ("native", "mjx")
-RELATIVE_PERTURBATION = 1e-6  # of each mean weight: the size of float32 rounding
+RELATIVE_PERTURBATION = 1e-6  # of each mean weight
 
 
-def perturbed_weights(weights, walks: int, seed: int = 0):
+def perturbed_weights(weights, walks: int, learners: Sequence[int], seed: int = 0):
     """Each learner's weights ``walks`` times in a row, the first as they are, the others with
-    every mean weight scaled by (1 + 1e-6 n), n ~ N(0, 1) drawn from ``seed``."""
+    every mean weight scaled by (1 + 1e-6 n), n ~ N(0, 1) drawn from ``seed`` and the learner's
+    index in its run (``learners``, one per row of ``weights``)."""
     rows = jnp.repeat(jnp.arange(weights.mean.shape[0]), walks)
     repeated = jax.tree.map(lambda w: jnp.asarray(w)[rows], weights)
-    n = jax.random.normal(jax.random.PRNGKey(seed), repeated.mean.shape).at[::walks].set(0.0)
+    key = jax.random.PRNGKey(seed)
+    n = jnp.concatenate([jax.random.normal(jax.random.fold_in(key, k), (walks, weights.mean.shape[1]))
+                         for k in learners]).at[::walks].set(0.0)
     return repeated._replace(mean=repeated.mean * (1.0 + RELATIVE_PERTURBATION * n))
 
 
-def engine_speeds(spec: train.RunSpec, weights, engine: str, seconds: float, walks: int) -> np.ndarray:
-    """(learners, walks) mean speeds after settling of the final policies on ``engine``, each
-    walked as a trial starts; NaN where the walk fell."""
+def engine_speeds(spec: train.RunSpec, weights, learners: Sequence[int], engine: str, seconds: float,
+                  walks: int) -> np.ndarray:
+    """(learners, walks) mean speeds of the final policies on ``engine`` (NaN where the walk
+    fell); ``weights`` has one row per learner of ``spec``, ``learners`` their indices in
+    their run."""
     sim = spec.simulation(engine)
-    task = train.make_task(sim, spec)
-    trace = walk.walk_from_standing(sim, actor_feedback(task), perturbed_weights(weights, walks), seconds,
-                                    hand_seconds=task.trial.walk_hand_seconds)
-    speeds = [np.nan if g.fell else g.mean_vx for g in walk.summarise(trace, sim.control_dt)]
-    return np.array(speeds).reshape(-1, walks)
+    gaits = report.final_policy_gaits(sim, train.make_task(sim, spec),
+                                      perturbed_weights(weights, walks, learners), seconds)
+    return np.array([np.nan if g["fell"] else g["mean_vx"] for g in gaits]).reshape(-1, walks)
+
+
+def _mean_and_spread(speeds: np.ndarray) -> tuple[float, list[float] | None]:
+    upright = speeds[np.isfinite(speeds)]
+    if not upright.size:
+        return float("nan"), None
+    return float(upright.mean()), [float(upright.min()), float(upright.max())]
 
 
 def compare_engines(spec: train.RunSpec, weights, succeeded: Sequence[bool], learned_on: str,
-                    seconds: float = 20.0, walks: int = 8) -> dict:
-    """The final policies ``weights`` (one row per learner of ``spec``) walked on every engine:
-    per learner its speeds as learned and over the walks, their ratio MJX / C, and its falls;
-    over the successful policies that walk on C, the median and largest |MJX/C - 1|."""
-    speeds = {engine: engine_speeds(spec, weights, engine, seconds, walks) for engine in ENGINES}
+                    seconds: float = report.WALK_SECONDS, walks: int = 8,
+                    learners: Sequence[int] | None = None) -> dict:
+    """The final policies ``weights`` (one row per learner of ``spec``; ``learners``: their
+    indices in their run, by default 0, 1, ...) walked on every engine: per learner its speeds
+    as learned and over the walks, their ratio MJX / C, and its falls; over the successful
+    policies that fall in no walk on either engine, the median and largest |MJX/C - 1|."""
+    learners = list(range(len(spec.k_s))) if learners is None else list(learners)
+    speeds = {engine: engine_speeds(spec, weights, learners, engine, seconds, walks) for engine in ENGINES}
     rows = []
-    for k, ok in enumerate(succeeded):
+    for k, (learner, ok) in enumerate(zip(learners, succeeded, strict=True)):
         c, x = speeds["native"][k], speeds["mjx"][k]
-        mean_c = float(np.nanmean(c)) if np.isfinite(c).any() else float("nan")
-        mean_x = float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
-        rows.append({"learner": k, "k_s": spec.k_s[k], "succeeded": bool(ok),
+        (mean_c, spread_c), (mean_x, spread_x) = _mean_and_spread(c), _mean_and_spread(x)
+        rows.append({"learner": learner, "k_s": spec.k_s[k], "succeeded": bool(ok),
                      "as_learned_c": float(c[0]), "as_learned_mjx": float(x[0]),
-                     "mean_vx_c": mean_c, "mean_vx_mjx": mean_x,
-                     "spread_c": [float(np.nanmin(c)), float(np.nanmax(c))] if np.isfinite(c).any() else None,
+                     "mean_vx_c": mean_c, "mean_vx_mjx": mean_x, "spread_c": spread_c, "spread_mjx": spread_x,
                      "mjx_over_c": mean_x / mean_c if mean_c else float("nan"),
                      "falls_c": int(np.isnan(c).sum()), "falls_mjx": int(np.isnan(x).sum()),
                      "speeds_c": c.tolist(), "speeds_mjx": x.tolist()})
-    off = np.array([abs(r["mjx_over_c"] - 1) for r in rows
-                    if r["succeeded"] and not r["falls_c"] and np.isfinite(r["mjx_over_c"])])
+    successful = [r for r in rows if r["succeeded"]]
+    fell = [r for r in successful if r["falls_c"] or r["falls_mjx"]]
+    off = np.array([abs(r["mjx_over_c"] - 1) for r in successful
+                    if r not in fell and np.isfinite(r["mjx_over_c"])])
     return {"learned_on": learned_on, "seconds": seconds, "walks": walks,
             "hand_seconds": spec.trial.walk_hand_seconds, "learners": rows, "compared": int(off.size),
+            "successful_that_fell": [r["learner"] for r in fell],
             "median_abs_difference": float(np.median(off)) if off.size else None,
             "max_abs_difference": float(off.max()) if off.size else None,
             "within_3_percent": int((off <= 0.03).sum()), "within_10_percent": int((off <= 0.10).sum()),
             "falls_c": sum(r["falls_c"] for r in rows), "falls_mjx": sum(r["falls_mjx"] for r in rows)}
 
 
-def walk_on_engines(run_dir: Path, seconds: float = 20.0, walks: int = 8) -> dict:
+def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: int = 8) -> dict:
     """Walk the run's final policies on both engines (``compare_engines``); write and return
     ``transfer.json``."""
     spec, record = runs.read_config(run_dir)

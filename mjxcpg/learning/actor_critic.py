@@ -57,8 +57,9 @@ class LearnerParams:
     Those are the defaults.
 
     Safeguards: ``max_abs_td_error`` (off by default) clips |delta| before the updates of
-    eqs (19) and (22); ``w_sigma_bounds`` = (low, high) clips w^sigma after each update,
-    which bounds sigma of eq (26) away from 0 and 1 (``None`` turns it off).
+    eqs (19) and (22) (scaled by 1/dt at a fall with ``fall_impulse``, as delta is there);
+    ``w_sigma_bounds`` = (low, high) clips w^sigma after each update, which bounds sigma of
+    eq (26) away from 0 and 1 (``None`` turns it off).
     """
 
     tau: float = 1.0            # discount time constant of eq (15)

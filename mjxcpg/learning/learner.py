@@ -18,7 +18,8 @@ angles, integrated gyro, sole forces, IMU tilt), as in the paper's online learni
 
 A trial ends at a fall (the robot is down, or its physics diverged) or after 20 s.  At a
 fall the TD error is delta = r_fall - V(x(t - dt)), Doya's (2000) terminal condition: the
-value just before the fall is pulled toward the fall's reward (-1), with no future after it.
+value just before the fall is pulled toward the fall's reward (-1), with no future after it
+(divided by dt with ``LearnerParams.fall_impulse``).
 Learning has succeeded after ``success_streak`` successive trials without a fall; the policy
 goes on learning for ``TrialParams.trials_after_success`` more trials (or until the trial
 budget ends), then stops with the weights as they were at the end of the newest streak of

@@ -5,11 +5,13 @@ Its state is a JAX pytree with a leading batch axis, so the controller and the l
 inside the same ``jit``/``lax.scan`` whatever the engine:
 
 * ``mujoco``: MuJoCo C, one robot after another on the calling thread (the scalar reference);
-* ``native``: MuJoCo C stepping the batch on all cores through ``mujoco.rollout``;
+* ``native``: MuJoCo C stepping the batch on all cores, inside XLA through an FFI handler
+  (``native_step``), else through ``mujoco.rollout`` in a callback;
 * ``mjx``: MuJoCo MJX, ``vmap``-ed, on whatever device JAX uses.
 
-The two C engines reach the host through a callback (``buffer_callback`` on one CPU device,
-which writes into XLA's own buffers; ``pure_callback`` elsewhere) and keep the full physics
+The two C engines reach MuJoCo through a callback (``buffer_callback`` on one CPU device,
+which writes into XLA's own buffers; ``pure_callback`` elsewhere), or, for ``native`` on one
+CPU device, through the FFI handler that makes the same calls; both keep the full physics
 state (``mjSTATE_FULLPHYSICS``) in the pytree; each control period starts the solver from a
 zero warm start, so that their results do not depend on thread scheduling or on which
 ``MjData`` served a robot.  They give identical results for the same inputs.  A robot whose
@@ -39,8 +41,9 @@ ENGINES = ("mujoco", "native", "mjx")
 _FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CTRL_AND_XFRC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 # The native engine uses its threads from this many robots per thread; below, one thread steps
-# the whole batch, since handing 4 robots to each of 2 threads gained nothing over one thread
-# (``mjxcpg bench``'s physics at batches 4 and 8).
+# the whole batch, since handing 4 robots to each of 2 threads of ``mujoco.rollout`` gained
+# nothing over one thread (``mjxcpg bench``'s physics at batches 4 and 8); the FFI handler
+# keeps the same threshold.
 _ROBOTS_PER_THREAD = 8
 _CPU_SLICE = 32  # MJX on the CPU steps at most this many robots in one vmap (MjxEngine._map)
 
@@ -208,7 +211,9 @@ class MujocoEngine(_CEngine):
 
 
 class NativeEngine(_CEngine):
-    """MuJoCo C on a thread pool (``mujoco.rollout``): the fast batch engine for CPUs."""
+    """MuJoCo C on all cores: the fast batch engine for CPUs.  Inside XLA through the FFI
+    handler of ``native_step`` when it could be built, else ``mujoco.rollout``'s thread pool
+    in a host callback; the same MuJoCo calls, the same results."""
 
     name = "native"
 
@@ -223,7 +228,7 @@ class NativeEngine(_CEngine):
         self._inline = rollout.Rollout(nthread=0)  # small batches: thread hand-offs cost more than they save
         self._buffers: dict[int, _RolloutBuffers] = {}
         # The FFI handler's: one MjData per thread, passed by the address of their addresses
-        # (XLA runs one call at a time).
+        # (the handler runs one call at a time).
         self._ffi_datas = [mujoco.MjData(model) for _ in range(self.threads)]
         self._ffi_addresses = np.array([d._address for d in self._ffi_datas], np.int64)
 

@@ -9,8 +9,11 @@
 // own mjData; every row's result is the same whichever thread steps it.
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <exception>
+#include <mutex>
 #include <thread>
 #include <vector>
 
@@ -76,11 +79,14 @@ void StepRows(const mjModel* m, mjData* d, int64_t first, int64_t last, int64_t 
 }
 
 // ``datas``: the address of an array of ``threads`` mjData addresses.  The batch is split into
-// ``threads`` blocks of nearly equal size; the calling thread steps the first.
+// ``threads`` blocks of nearly equal size; the calling thread steps the first, and any block
+// whose thread cannot be started.  Calls are serialised: they share the mjData.
 ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
                 ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
                 ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
                 int64_t model_address, int64_t datas, int64_t threads, int64_t substeps) {
+  static std::mutex one_call_at_a_time;
+  std::lock_guard<std::mutex> lock(one_call_at_a_time);
   const mjModel* m = reinterpret_cast<const mjModel*>(model_address);
   mjData* const* data = reinterpret_cast<mjData* const*>(datas);
   const int64_t batch = active.element_count();
@@ -89,15 +95,27 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
     return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
   }
   const int64_t blocks = std::max<int64_t>(1, std::min(threads, batch));
+  std::atomic<bool> failed{false};
   auto block = [&](int64_t k) {
-    StepRows(m, data[k], batch * k / blocks, batch * (k + 1) / blocks, substeps, physics.typed_data(),
-             sensordata.typed_data(), ctrl.typed_data(), active.typed_data(), physics_out->typed_data(),
-             sensordata_out->typed_data());
+    try {
+      StepRows(m, data[k], batch * k / blocks, batch * (k + 1) / blocks, substeps, physics.typed_data(),
+               sensordata.typed_data(), ctrl.typed_data(), active.typed_data(), physics_out->typed_data(),
+               sensordata_out->typed_data());
+    } catch (const std::exception&) {
+      failed = true;
+    }
   };
   std::vector<std::thread> others;
-  for (int64_t k = 1; k < blocks; k++) others.emplace_back(block, k);
+  int64_t started = 1;
+  try {
+    for (; started < blocks; started++) others.emplace_back(block, started);
+  } catch (const std::exception&) {
+    // No more threads to be had: the calling thread steps the blocks left.
+  }
   block(0);
+  for (int64_t k = started; k < blocks; k++) block(k);
   for (auto& t : others) t.join();
+  if (failed) return ffi::Error::Internal("mjxcpg_mujoco_step: stepping a block of robots failed");
   return ffi::Error::Success();
 }
 

@@ -56,7 +56,7 @@ def _build(source: bytes, target: Path) -> None:
     with tempfile.TemporaryDirectory(dir=target.parent) as folder:
         cc, out = Path(folder) / "mujoco_step.cc", Path(folder) / target.name
         cc.write_bytes(source)
-        command = [compiler, "-O2", "-std=c++17", "-shared", "-fPIC", "-o", str(out), str(cc),
+        command = [compiler, "-O2", "-std=c++17", "-pthread", "-shared", "-fPIC", "-o", str(out), str(cc),
                    f"-I{jax.ffi.include_dir()}", f"-I{mujoco_dir / 'include'}",
                    str(libraries[0]), f"-Wl,-rpath,{mujoco_dir}"]
         result = subprocess.run(command, capture_output=True, text=True)

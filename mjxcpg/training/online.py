@@ -82,7 +82,7 @@ def _learn_online_locked(source: Path, learner: int, out: Path, trials: int, rob
     wall_s = time.perf_counter() - start
 
     result = train.learner_results(spec, state.learners)[0]
-    walk_check = report.final_policy_gaits(sim, task, state)[0]
+    walk_check = report.final_policy_gaits(sim, task, state.learners.weights)[0]
     summary = {
         "from": str(source), "learner": learner, "robot": robot, "reward": reward,
         "engine": sim.engine.name, "k_s": spec.k_s[0], "seed": spec.seeds[0],

@@ -86,12 +86,12 @@ def trials_to_streak(fall_rate: float, streak: int, needed: int) -> float:
     return (q ** -needed - q ** -streak) / fall_rate
 
 
-def recent_fall_rate(falls: np.ndarray, trials: np.ndarray) -> np.ndarray:
-    """Per learner, (falls + 1) / (n + 2) over its last n = min(trials, ``RECENT_TRIALS``)
-    trials (Laplace's rule: never exactly 0 or 1); ``falls``: (learners, budget) per trial."""
+def recent_fall_rate(falls: np.ndarray, trials: np.ndarray, window: int = RECENT_TRIALS) -> np.ndarray:
+    """Per learner, (falls + 1) / (n + 2) over its last n = min(trials, ``window``) trials
+    (Laplace's rule: never exactly 0 or 1); ``falls``: (learners, budget) per trial."""
     rates = np.empty(len(trials))
     for i, n in enumerate(trials):
-        recent = np.asarray(falls[i, max(0, n - RECENT_TRIALS):n], np.float64)
+        recent = np.asarray(falls[i, max(0, n - window):n], np.float64)
         rates[i] = (recent.sum() + 1.0) / (recent.size + 2.0)
     return rates
 

@@ -20,18 +20,23 @@ PAPER_TABLE1 = {0.0: (4, 1, 2385), 1.0: (3, 3, 528), 2.0: (3, 3, 195), 3.0: (4, 
                 4.0: (3, 2, 192), 5.0: (5, 2, 1011), 10.0: (5, 5, 95)}
 
 
-def final_policy_gaits(sim, task, state: train.RunState, seconds: float = 20.0,
+WALK_SECONDS = 20.0  # a final policy's walk, its hand-designed start included
+
+
+def final_policy_gaits(sim, task, weights, seconds: float = WALK_SECONDS,
                        hand_seconds: float | None = None) -> list[dict]:
     """Every learner's final policy (mean, no noise; a control's own feedback) walks
-    ``seconds``, all in one batch, after ``hand_seconds`` of the hand-designed feedback:
-    by default as a learning trial starts (``TrialParams.walk_hand_seconds``); 0 walks it
-    from standing."""
+    ``seconds``, all in one batch, the first ``hand_seconds`` of them with the hand-designed
+    feedback: by default as a learning trial starts (``TrialParams.walk_hand_seconds``); 0
+    walks it from standing.  ``weights``: one row per robot.  Its speed and height are
+    measured after the hand-designed start, and never before ``walk.SETTLE_SECONDS``."""
     if hand_seconds is None:
         hand_seconds = task.trial.walk_hand_seconds
     # On one device: this walk, unlike the learning, is not bit-stable under sharding.
-    trace = walk.walk_from_standing(sim, actor_feedback(task), jax.device_get(state.learners.weights),
-                                    seconds, hand_seconds=hand_seconds)
-    return [g.as_dict() for g in walk.summarise(trace, sim.control_dt)]
+    trace = walk.walk_from_standing(sim, actor_feedback(task), jax.device_get(weights), seconds,
+                                    hand_seconds=hand_seconds)
+    settle = max(walk.SETTLE_SECONDS, hand_seconds)
+    return [g.as_dict() for g in walk.summarise(trace, sim.control_dt, settle_s=settle)]
 
 
 def table1(results: list[dict]) -> str:
@@ -56,7 +61,7 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
     """summary.json (per learner, with its final policy's gait), returns.json (per trial),
     table1.md, and unless ``plots_too`` is False the PNG plots."""
     results = train.learner_results(spec, state.learners)
-    gaits = final_policy_gaits(sim, task, state)
+    gaits = final_policy_gaits(sim, task, state.learners.weights)
     weights = jax.device_get(state.learners.weights)
     learners = []
     for i, (r, g) in enumerate(zip(results, gaits)):
@@ -79,7 +84,7 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
                                   out / f"learning_curve_ks{k_s:g}.png", title=f"k_s = {k_s:g} (cf. Fig 4)")
         plots.diagnostics(results, out / "diagnostics.png")
     summary = {"engine": sim.engine.name, "success_streak": spec.trial.success_streak,
-               "walk": {"seconds": 20.0, "hand_seconds": task.trial.walk_hand_seconds}, "learners": learners}
+               "walk": {"seconds": WALK_SECONDS, "hand_seconds": task.trial.walk_hand_seconds}, "learners": learners}
     write_text_atomic(out / "returns.json", json.dumps(results))
     write_table1(out, summary)
     # Last: a run directory with summary.json is finished, and holds all of its results.
@@ -152,25 +157,45 @@ def velocity_trend(rows: list[dict]) -> dict:
     }
 
 
+def walk_description(walk_record: dict | None) -> str:
+    """How a summary.json's final policies walked, in words (``None``: a summary written
+    before the walk was recorded, which walked 20 s from standing)."""
+    if walk_record is None:
+        return "a 20 s walk from standing (an earlier version's summary)"
+    if not walk_record["hand_seconds"]:
+        return f"a {walk_record['seconds']:g} s walk from standing, after the first 2 s"
+    return (f"a {walk_record['seconds']:g} s walk whose first {walk_record['hand_seconds']:g} s are the "
+            f"hand-designed feedback, as a learning trial starts, measured after them")
+
+
 def write_table1(run_dir: Path, summary: dict | None = None) -> str:
     """table1.md of a finished run: Table 1 beside the paper's, the learners and whatever
     controls ``run_dir/controls/`` holds in one table, and velocity against k_s (Fig 7);
     the numbers also go to stats.json.  ``summary``: the run's summary.json, when it is
     not yet written."""
     results = json.loads((run_dir / "returns.json").read_text())
-    learners = read_metrics(run_dir) if summary is None else learner_metrics(summary, results)
-    arms = {"learners": learners}
+    if summary is None:
+        summary = json.loads((run_dir / "summary.json").read_text())
+    arms = {"learners": learner_metrics(summary, results)}
+    walks = {"learners": summary.get("walk")}
     for name in CONTROL_LABELS:
         if (run_dir / "controls" / name / "summary.json").is_file():
             arms[name] = read_metrics(run_dir / "controls" / name)
+            walks[name] = json.loads((run_dir / "controls" / name / "summary.json").read_text()).get("walk")
     lines = [table1(results), "",
              "Learners and controls, each with its 95% bootstrap interval over learners. Fall rate "
              "and mean return are per trial; the final return is the mean over the last success-streak trials; "
-             "velocity is the final policy's mean over a 20 s walk (policy mean, no noise).", "",
-             "| arm | k_s | successes | trials to success | fall rate | mean return | final return | "
+             f"velocity is the final policy's mean (policy mean, no noise) over {walk_description(walks['learners'])}.",
+             "", "| arm | k_s | successes | trials to success | fall rate | mean return | final return | "
              "20 s velocity (m/s) |", "|---|---|---|---|---|---|---|---|"]
     for name, rows in arms.items():
         lines += arm_rows(CONTROL_LABELS.get(name, "learners"), rows)
+    other = [name for name, w in walks.items() if w != walks["learners"]]
+    if other:
+        lines += ["", "Walked otherwise, so their velocities do not compare with the learners': "
+                  + "; ".join(f"{CONTROL_LABELS[name]} over {walk_description(walks[name])}" for name in other)
+                  + " (`mjxcpg controls --force` runs them again)."]
+    learners = arms["learners"]
     trend = velocity_trend(learners)
     if trend["slope"] is not None:
         slope = stats.Estimate(**trend["slope"])
