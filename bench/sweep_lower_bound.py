@@ -6,7 +6,9 @@ learners unfinished before it, times its control periods, times the physics step
 period.  The lower bound steps that many robots with raw MuJoCo C (``mujoco.rollout``, one
 call over many recorded states) on the threads the run's engine used for that chunk: the
 native engine's threads from ``engines._ROBOTS_PER_THREAD`` robots per thread, else one
-(``--cores``: fewer, for a run pinned to fewer cores than its engine has threads).
+(``--cores``: fewer, for a run pinned to fewer cores than its engine has threads).  On
+several threads the cost per robot-step is measured on those threads, not divided by their
+number: the machine's own scaling counts, as it does for the run.
 Both sides count from the first chunk's end (its compilation apart) to the last chunk's end.
 
 The C cost per robot-step is measured here, on states of the run's own spec: a chunk of
@@ -36,8 +38,10 @@ from mjxcpg.training.events import EVENTS_DIR, RUN_NAME, read_events
 SAMPLE_LEARNERS = 8
 
 
-def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int) -> tuple[float, int, int]:
-    """(seconds per robot-step of raw MuJoCo C on one thread, the engine's threads, substeps)."""
+def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int,
+                             cores: int | None) -> tuple[float, float, int, int]:
+    """(seconds per robot-step of raw MuJoCo C on one thread, and on the engine's threads
+    (at most ``cores``), those threads, substeps)."""
     sample = dataclasses.replace(spec, k_s=spec.k_s[:SAMPLE_LEARNERS], seeds=spec.seeds[:SAMPLE_LEARNERS])
     sim = sample.simulation(engine_name)
     task = train.make_task(sim, sample)
@@ -50,25 +54,30 @@ def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int
     substeps = sim.engine.substeps
     control = np.ascontiguousarray(np.repeat(ctrl, substeps, axis=1))
     model = sim.model
-    runner, data = rollout.Rollout(nthread=0), [mujoco.MjData(model)]
     out_state = np.empty((len(physics), substeps, len(physics[0])))
     out_sensors = np.empty((len(physics), substeps, model.nsensordata))
-    times = []
-    for _ in range(3):
-        start = time.perf_counter()
-        runner.rollout([model] * len(physics), data, physics, control, control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
-                       skip_checks=True, nstep=substeps, initial_warmstart=np.zeros((len(physics), model.nv)),
-                       state=out_state, sensordata=out_sensors)
-        times.append(time.perf_counter() - start)
-    threads = getattr(sim.engine, "threads", 1)
-    return min(times) / (len(physics) * substeps), threads, substeps
+    threads = min(getattr(sim.engine, "threads", 1), cores or getattr(sim.engine, "threads", 1))
+
+    def per_step(nthread: int) -> float:
+        runner = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        data = [mujoco.MjData(model) for _ in range(nthread)]
+        times = []
+        for _ in range(3):
+            start = time.perf_counter()
+            runner.rollout([model] * len(physics), data, physics, control,
+                           control_spec=int(mujoco.mjtState.mjSTATE_CTRL), skip_checks=True, nstep=substeps,
+                           initial_warmstart=np.zeros((len(physics), model.nv)), state=out_state,
+                           sensordata=out_sensors)
+            times.append(time.perf_counter() - start)
+        return min(times) / (len(physics) * substeps)
+
+    return per_step(1), per_step(threads), threads, substeps
 
 
 def lower_bound(run_dir: Path, periods: int, cores: int | None) -> dict:
     spec, record = runs.read_config(run_dir)
     events = [(wall, values) for wall, _, values in read_events(run_dir / EVENTS_DIR / RUN_NAME)]
-    per_step, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods)
-    threads = min(threads, cores or threads)
+    per_step, per_step_threaded, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods, cores)
     chunk_periods = round(spec.chunk_seconds / spec.controller.control_dt)
     bound, robot_steps = 0.0, 0
     for (_, before), (_, after) in zip(events, events[1:]):
@@ -76,10 +85,11 @@ def lower_bound(run_dir: Path, periods: int, cores: int | None) -> dict:
         rows = train.compacted_size(active, spec.batch)
         steps = active * chunk_periods * substeps
         robot_steps += steps
-        bound += steps * per_step / (threads if rows >= engines._ROBOTS_PER_THREAD * threads else 1)
+        bound += steps * (per_step_threaded if rows >= engines._ROBOTS_PER_THREAD * threads else per_step)
     wall = events[-1][0] - events[0][0]
     return {"run": str(run_dir), "engine": record["engine"], "wall_s": wall, "robot_steps": robot_steps,
-            "c_us_per_robot_step": per_step * 1e6, "threads": threads, "lower_bound_s": bound,
+            "c_us_per_robot_step": per_step * 1e6, "c_us_per_robot_step_threads": per_step_threaded * 1e6,
+            "threads": threads, "lower_bound_s": bound,
             "ratio": wall / bound if bound else None}
 
 
@@ -91,12 +101,12 @@ def main(argv: list[str]) -> int:
                         help="cores the run had (a run pinned with taskset had fewer than its engine's threads)")
     args = parser.parse_args(argv)
     print("| run | engine | wall, first chunk's end to last (s) | robot-steps | raw C (us per robot-step, 1 thread) "
-          "| lower bound (s) | wall / bound |")
-    print("|---|---|---|---|---|---|---|")
+          "| on the threads | lower bound (s) | wall / bound |")
+    print("|---|---|---|---|---|---|---|---|")
     for run in args.runs:
         r = lower_bound(run, args.periods, args.cores)
         print(f"| {r['run']} | {r['engine']} | {r['wall_s']:.1f} | {r['robot_steps']:,} | {r['c_us_per_robot_step']:.2f} "
-              f"| {r['lower_bound_s']:.1f} | {r['ratio']:.2f} |")
+              f"| {r['c_us_per_robot_step_threads']:.2f} ({r['threads']}) | {r['lower_bound_s']:.1f} | {r['ratio']:.2f} |")
     return 0
 
 
