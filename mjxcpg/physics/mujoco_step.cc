@@ -10,9 +10,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdint>
 #include <exception>
+#include <functional>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -31,6 +34,64 @@ bool AnyWarning(const mjData* d) {
   }
   return false;
 }
+
+// Threads kept between calls: starting one per control period costs tens of microseconds,
+// and a worker that sleeps between periods must be woken.  A worker waits for the next call
+// spinning for kSpin, then asleep; the calling thread runs block 0 and spins until the
+// workers are done.
+class Pool {
+ public:
+  // fn(k) for k in [0, blocks): k = 0 on the calling thread.  False if the workers could not
+  // be started; then nothing has run.
+  bool Run(int64_t blocks, const std::function<void(int64_t)>& fn) {
+    try {
+      while (static_cast<int64_t>(workers_.size()) < blocks - 1) {
+        const int64_t index = workers_.size();
+        workers_.emplace_back([this, index] { Work(index); });
+      }
+    } catch (const std::exception&) {
+      return false;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      task_ = &fn;
+      blocks_ = blocks;
+      pending_.store(workers_.size(), std::memory_order_relaxed);
+      generation_.fetch_add(1, std::memory_order_release);
+    }
+    wake_.notify_all();
+    fn(0);
+    while (pending_.load(std::memory_order_acquire) != 0) std::this_thread::yield();
+    return true;
+  }
+
+ private:
+  static constexpr std::chrono::microseconds kSpin{500};
+
+  void Work(int64_t index) {
+    uint64_t seen = 0;
+    for (;;) {
+      const auto start = std::chrono::steady_clock::now();
+      while (generation_.load(std::memory_order_acquire) == seen) {
+        if (std::chrono::steady_clock::now() - start > kSpin) {
+          std::unique_lock<std::mutex> lock(mutex_);
+          wake_.wait(lock, [&] { return generation_.load(std::memory_order_acquire) != seen; });
+        }
+      }
+      seen = generation_.load(std::memory_order_acquire);
+      if (index + 1 < blocks_) (*task_)(index + 1);
+      pending_.fetch_sub(1, std::memory_order_release);
+    }
+  }
+
+  std::vector<std::thread> workers_;  // never joined: the pool lives as long as the process
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::atomic<uint64_t> generation_{0};
+  std::atomic<int64_t> pending_{0};
+  const std::function<void(int64_t)>* task_ = nullptr;
+  int64_t blocks_ = 0;
+};
 
 // Rows [first, last) with ``active`` set: the state after ``substeps`` steps under ``ctrl``
 // (the servo targets), or NaN where MuJoCo diverged (its clock did not advance by the control
@@ -79,8 +140,9 @@ void StepRows(const mjModel* m, mjData* d, int64_t first, int64_t last, int64_t 
 }
 
 // ``datas``: the address of an array of ``threads`` mjData addresses.  The batch is split into
-// ``threads`` blocks of nearly equal size; the calling thread steps the first, and any block
-// whose thread cannot be started.  Calls are serialised: they share the mjData.
+// ``threads`` blocks of nearly equal size, stepped by the calling thread and the pool's, or
+// all by the calling thread if the pool's cannot be started.  Calls are serialised: they
+// share the mjData and the pool.
 ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
                 ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
                 ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
@@ -105,16 +167,11 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
       failed = true;
     }
   };
-  std::vector<std::thread> others;
-  int64_t started = 1;
-  try {
-    for (; started < blocks; started++) others.emplace_back(block, started);
-  } catch (const std::exception&) {
-    // No more threads to be had: the calling thread steps the blocks left.
+  static Pool* pool = new Pool();  // leaked on purpose: its threads never end
+  const std::function<void(int64_t)> task = block;
+  if (blocks == 1 || !pool->Run(blocks, task)) {
+    for (int64_t k = 0; k < blocks; k++) block(k);  // no threads to be had: all on this one
   }
-  block(0);
-  for (int64_t k = started; k < blocks; k++) block(k);
-  for (auto& t : others) t.join();
   if (failed) return ffi::Error::Internal("mjxcpg_mujoco_step: stepping a block of robots failed");
   return ffi::Error::Success();
 }
