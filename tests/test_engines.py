@@ -406,3 +406,26 @@ def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit(threaded):
     others = np.setdiff1d(np.arange(batch), diverged + idle)
     assert np.isfinite(np.asarray(final.physics[others])).all()
     np.testing.assert_array_equal(np.asarray(final.physics[jnp.array(idle)]), np.asarray(start.physics[jnp.array(idle)]))
+
+
+def test_native_step_threads_added_after_use_wait_for_the_next_call():
+    """The handler's pool grows when an engine with more threads steps after one with fewer:
+    engines of 2, 3 and again 2 threads in turn, each batch split over its threads, each
+    equal bit for bit to the host callback (a worker that joined late and ran a stale call
+    would change or lose rows)."""
+    if native_step.step_handler() is None:
+        pytest.skip("no C++ compiler: the native engine has only its host callback here")
+    sim = make_simulation("native")
+    standing = joint_targets(sim.params, sim.layout, jnp.zeros(6))
+    for threads in (2, 3, 2):
+        engine = engines.NativeEngine(sim.model, sim.engine.substeps, threads=threads)
+        batch = engines._ROBOTS_PER_THREAD * threads + 1
+        start = engine.init(sim.qpos0, batch)
+        ctrls = standing + 0.1 * jnp.sin(jnp.arange(30.0)[:, None, None] / 5 + jnp.arange(float(batch))[None, :, None])
+
+        def rollout(step):
+            return jax.jit(lambda s, us: jax.lax.scan(lambda x, u: (step(x, u), None), s, us)[0])(start, ctrls)
+
+        in_xla, callback = rollout(engine.step), rollout(lambda s, u: engines._CEngine.step(engine, s, u))
+        for a, b in zip(jax.tree.leaves(in_xla), jax.tree.leaves(callback)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -45,9 +45,12 @@ class Pool {
   // be started; then nothing has run.
   bool Run(int64_t blocks, const std::function<void(int64_t)>& fn) {
     try {
+      // A new worker waits for the next call, not the one before it (calls are serialised,
+      // so the generation does not move while workers are added).
+      const uint64_t now = generation_.load(std::memory_order_acquire);
       while (static_cast<int64_t>(workers_.size()) < blocks - 1) {
         const int64_t index = workers_.size();
-        workers_.emplace_back([this, index] { Work(index); });
+        workers_.emplace_back([this, index, now] { Work(index, now); });
       }
     } catch (const std::exception&) {
       return false;
@@ -68,8 +71,7 @@ class Pool {
  private:
   static constexpr std::chrono::microseconds kSpin{500};
 
-  void Work(int64_t index) {
-    uint64_t seen = 0;
+  void Work(int64_t index, uint64_t seen) {
     for (;;) {
       const auto start = std::chrono::steady_clock::now();
       while (generation_.load(std::memory_order_acquire) == seen) {
