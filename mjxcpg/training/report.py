@@ -162,10 +162,12 @@ def walk_description(walk_record: dict | None) -> str:
     before the walk was recorded, which walked 20 s from standing)."""
     if walk_record is None:
         return "a 20 s walk from standing (an earlier version's summary)"
-    if not walk_record["hand_seconds"]:
-        return f"a {walk_record['seconds']:g} s walk from standing, after the first 2 s"
-    return (f"a {walk_record['seconds']:g} s walk whose first {walk_record['hand_seconds']:g} s are the "
-            f"hand-designed feedback, as a learning trial starts, measured after them")
+    seconds, hand = walk_record["seconds"], walk_record["hand_seconds"]
+    measured = f"measured from {max(walk.SETTLE_SECONDS, hand):g} s on"
+    if not hand:
+        return f"a {seconds:g} s walk from standing, {measured}"
+    return (f"a {seconds:g} s walk whose first {hand:g} s are the hand-designed feedback, as a learning "
+            f"trial starts, {measured}")
 
 
 def write_table1(run_dir: Path, summary: dict | None = None) -> str:
