@@ -95,13 +95,11 @@ class Pool {
   int64_t blocks_ = 0;
 };
 
-// Rows [first, last) with ``active`` set: the state after ``substeps`` steps under ``ctrl``
+// The rows ``rows[0..count)``, all active: the state after ``substeps`` steps under ``ctrl``
 // (the servo targets), or NaN where MuJoCo diverged (its clock did not advance by the control
-// period, or the state is not finite).  Other rows keep their values (the outputs alias the
-// inputs).
-void StepRows(const mjModel* m, mjData* d, int64_t first, int64_t last, int64_t substeps,
-              const float* state_in, const float* sensors_in, const float* ctrl_in,
-              const bool* active_in, float* state_out, float* sensors_out) {
+// period, or the state is not finite).
+void StepRows(const mjModel* m, mjData* d, const int64_t* rows, int64_t count, int64_t substeps,
+              const float* state_in, const float* ctrl_in, float* state_out, float* sensors_out) {
   const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
   const int nsensordata = m->nsensordata, nu = m->nu;
   std::vector<mjtNum> start(nstate), stepped(nstate), controls(nu);
@@ -112,14 +110,10 @@ void StepRows(const mjModel* m, mjData* d, int64_t first, int64_t last, int64_t 
   mju_zero(d->xfrc_applied, 6 * m->nbody);
   for (int i = 0; i < m->neq; i++) d->eq_active[i] = m->eq_active0[i];
 
-  for (int64_t r = first; r < last; r++) {
+  for (int64_t j = 0; j < count; j++) {
+    const int64_t r = rows[j];
     float* row_out = state_out + r * nstate;
     float* sensors_row_out = sensors_out + r * nsensordata;
-    if (state_out != state_in) std::copy(state_in + r * nstate, state_in + (r + 1) * nstate, row_out);
-    if (sensors_out != sensors_in) {
-      std::copy(sensors_in + r * nsensordata, sensors_in + (r + 1) * nsensordata, sensors_row_out);
-    }
-    if (!active_in[r]) continue;
     for (int i = 0; i < nstate; i++) start[i] = state_in[r * nstate + i];
     for (int i = 0; i < nu; i++) controls[i] = ctrl_in[r * nu + i];
     mj_setState(m, d, start.data(), mjSTATE_FULLPHYSICS);
@@ -141,10 +135,12 @@ void StepRows(const mjModel* m, mjData* d, int64_t first, int64_t last, int64_t 
   }
 }
 
-// ``datas``: the address of an array of ``threads`` mjData addresses.  The batch is split into
-// ``threads`` blocks of nearly equal size, stepped by the calling thread and the pool's, or
-// all by the calling thread if the pool's cannot be started.  Calls are serialised: they
-// share the mjData and the pool.
+// ``datas``: the address of an array of ``threads`` mjData addresses.  Rows without ``active``
+// keep their values (the outputs alias the inputs, else they are copied).  The active rows
+// are split into ``threads`` blocks of nearly equal size, stepped by the calling thread and
+// the pool's, or all by the calling thread if the pool's cannot be started: a batch whose
+// finished learners sit in one part of it still keeps every thread busy.  Calls are
+// serialised: they share the mjData and the pool.
 ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
                 ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
                 ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
@@ -158,13 +154,26 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
       sensordata.element_count() != batch * m->nsensordata || ctrl.element_count() != batch * m->nu) {
     return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
   }
-  const int64_t blocks = std::max<int64_t>(1, std::min(threads, batch));
+  const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), nsensordata = m->nsensordata;
+  if (physics_out->typed_data() != physics.typed_data()) {
+    std::copy(physics.typed_data(), physics.typed_data() + batch * nstate, physics_out->typed_data());
+  }
+  if (sensordata_out->typed_data() != sensordata.typed_data()) {
+    std::copy(sensordata.typed_data(), sensordata.typed_data() + batch * nsensordata,
+              sensordata_out->typed_data());
+  }
+  std::vector<int64_t> live;
+  for (int64_t r = 0; r < batch; r++) {
+    if (active.typed_data()[r]) live.push_back(r);
+  }
+  const int64_t count = live.size();
+  const int64_t blocks = std::max<int64_t>(1, std::min(threads, count));
   std::atomic<bool> failed{false};
   auto block = [&](int64_t k) {
     try {
-      StepRows(m, data[k], batch * k / blocks, batch * (k + 1) / blocks, substeps, physics.typed_data(),
-               sensordata.typed_data(), ctrl.typed_data(), active.typed_data(), physics_out->typed_data(),
-               sensordata_out->typed_data());
+      const int64_t first = count * k / blocks, last = count * (k + 1) / blocks;
+      StepRows(m, data[k], live.data() + first, last - first, substeps, physics.typed_data(),
+               ctrl.typed_data(), physics_out->typed_data(), sensordata_out->typed_data());
     } catch (const std::exception&) {
       failed = true;
     }
