@@ -17,6 +17,9 @@ standing), and every recorded (state, servo targets) pair is stepped once.  Run 
 machine that made the run, and on a quiet one.
 
     NPROC=1 .venv/bin/python bench/sweep_lower_bound.py runs/paper [--periods 500]
+
+It also prints each run by phase: the chunks that ran at each batch width, their wall time
+and their bound.
 """
 
 import argparse
@@ -80,16 +83,22 @@ def lower_bound(run_dir: Path, periods: int, cores: int | None) -> dict:
     per_step, per_step_threaded, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods, cores)
     chunk_periods = round(spec.chunk_seconds / spec.controller.control_dt)
     bound, robot_steps = 0.0, 0
-    for (_, before), (_, after) in zip(events, events[1:]):
+    phases: dict[int, list[float]] = {}  # rows -> [chunks, wall s, bound s]
+    for (start, before), (end, after) in zip(events, events[1:]):
         active = spec.batch - int(before["progress/learners_finished"])
         rows = train.compacted_size(active, spec.batch)
         steps = active * chunk_periods * substeps
         robot_steps += steps
-        bound += steps * (per_step_threaded if rows >= engines._ROBOTS_PER_THREAD * threads else per_step)
+        chunk_bound = steps * (per_step_threaded if rows >= engines._ROBOTS_PER_THREAD * threads else per_step)
+        bound += chunk_bound
+        phase = phases.setdefault(rows, [0, 0.0, 0.0])
+        phase[0] += 1
+        phase[1] += end - start
+        phase[2] += chunk_bound
     wall = events[-1][0] - events[0][0]
     return {"run": str(run_dir), "engine": record["engine"], "wall_s": wall, "robot_steps": robot_steps,
             "c_us_per_robot_step": per_step * 1e6, "c_us_per_robot_step_threads": per_step_threaded * 1e6,
-            "threads": threads, "lower_bound_s": bound,
+            "threads": threads, "lower_bound_s": bound, "phases": phases,
             "ratio": wall / bound if bound else None}
 
 
@@ -103,10 +112,17 @@ def main(argv: list[str]) -> int:
     print("| run | engine | wall, first chunk's end to last (s) | robot-steps | raw C (us per robot-step, 1 thread) "
           "| on the threads | lower bound (s) | wall / bound |")
     print("|---|---|---|---|---|---|---|---|")
+    phases = []
     for run in args.runs:
         r = lower_bound(run, args.periods, args.cores)
         print(f"| {r['run']} | {r['engine']} | {r['wall_s']:.1f} | {r['robot_steps']:,} | {r['c_us_per_robot_step']:.2f} "
               f"| {r['c_us_per_robot_step_threads']:.2f} ({r['threads']}) | {r['lower_bound_s']:.1f} | {r['ratio']:.2f} |")
+        phases.append(r)
+    for r in phases:
+        print(f"\n{r['run']}, by the rows its chunks ran (the batch as it shrinks)\n\n"
+              "| rows | chunks | wall (s) | lower bound (s) | wall / bound |\n|---|---|---|---|---|")
+        for rows, (chunks, wall, bound) in sorted(r["phases"].items(), reverse=True):
+            print(f"| {rows} | {chunks} | {wall:.1f} | {bound:.1f} | {wall / bound:.2f} |")
     return 0
 
 
