@@ -150,11 +150,11 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
   const mjModel* m = reinterpret_cast<const mjModel*>(model_address);
   mjData* const* data = reinterpret_cast<mjData* const*>(datas);
   const int64_t batch = active.element_count();
-  if (physics.element_count() != batch * mj_stateSize(m, mjSTATE_FULLPHYSICS) ||
-      sensordata.element_count() != batch * m->nsensordata || ctrl.element_count() != batch * m->nu) {
+  const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), nsensordata = m->nsensordata;
+  if (physics.element_count() != batch * nstate || sensordata.element_count() != batch * nsensordata ||
+      ctrl.element_count() != batch * m->nu) {
     return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
   }
-  const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), nsensordata = m->nsensordata;
   if (physics_out->typed_data() != physics.typed_data()) {
     std::copy(physics.typed_data(), physics.typed_data() + batch * nstate, physics_out->typed_data());
   }
