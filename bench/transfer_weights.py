@@ -33,8 +33,7 @@ def main() -> None:
     result = transfer.compare_engines(spec, weights, saved["trials_to_success"][chosen] >= 0, record["engine"],
                                       walks=args.walks, learners=chosen.tolist())
     for r in result["learners"]:
-        print(f"learner {r['learner']:3d}  k_s {r['k_s']:4g}  C {r['mean_vx_c']:.4f}  MJX {r['mean_vx_mjx']:.4f}"
-              f"  MJX/C {r['mjx_over_c']:.3f}  falls C {r['falls_c']} MJX {r['falls_mjx']}")
+        print(transfer.row_line(r, args.walks))
     print(json.dumps({k: v for k, v in report.json_safe(result).items() if k != "learners"}))
     if args.out:
         args.out.write_text(json.dumps(report.json_safe(result), indent=1))

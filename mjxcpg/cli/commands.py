@@ -174,10 +174,7 @@ def cmd_transfer(args: argparse.Namespace) -> dict:
         raise UserError(f"{args.run} holds no finished run (no summary.json); run the sweep first")
     result = transfer.walk_on_engines(Path(args.run), args.seconds, args.walks)
     for r in result["learners"]:
-        print(f"learner {r['learner']:3d}  k_s {r['k_s']:4g}  mean over {args.walks} walks: C {r['mean_vx_c']:.4f}"
-              f"  MJX {r['mean_vx_mjx']:.4f}  MJX/C {r['mjx_over_c']:.3f}"
-              + (f"  falls on C {r['falls_c']}" if r["falls_c"] else "")
-              + (f"  falls on MJX {r['falls_mjx']}" if r["falls_mjx"] else ""))
+        print(transfer.row_line(r, args.walks))
     return {k: v for k, v in result.items() if k != "learners"} | {"out": str(Path(args.run) / "transfer.json")}
 
 

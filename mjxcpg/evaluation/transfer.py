@@ -97,6 +97,14 @@ def compare_engines(spec: train.RunSpec, weights, succeeded: Sequence[bool], lea
             "falls_c": sum(r["falls_c"] for r in rows), "falls_mjx": sum(r["falls_mjx"] for r in rows)}
 
 
+def row_line(row: dict, walks: int) -> str:
+    """One learner of ``compare_engines`` in a line: its mean speeds, their ratio, its falls."""
+    return (f"learner {row['learner']:3d}  k_s {row['k_s']:4g}  mean over {walks} walks: C {row['mean_vx_c']:.4f}"
+            f"  MJX {row['mean_vx_mjx']:.4f}  MJX/C {row['mjx_over_c']:.3f}"
+            + (f"  falls on C {row['falls_c']}" if row["falls_c"] else "")
+            + (f"  falls on MJX {row['falls_mjx']}" if row["falls_mjx"] else ""))
+
+
 def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: int = 8) -> dict:
     """Walk the run's final policies on both engines (``compare_engines``); write and return
     ``transfer.json``."""
