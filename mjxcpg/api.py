@@ -25,13 +25,16 @@ EVALUATIONS = registry.NAMES  # in run order; transfer: on the hardware robot on
 
 def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = None, resume: bool = False,
           force: bool = False, progress: bool = True, tensorboard: bool = True,
-          allow_other_code: bool = False, processes: jax_processes.Group = jax_processes.ALONE) -> dict | None:
+          allow_other_code: bool = False, processes: jax_processes.Group = jax_processes.ALONE,
+          checkpoint_every_s: float = runs.CHECKPOINT_EVERY_S) -> dict | None:
     """Run the learners of ``config`` (a config's name, a .toml/.json path or a ``RunSpec``)
     in lockstep until each has met the success criterion or used its budget, into the run
     directory ``out`` (checkpoints, TensorBoard events, reports: README, "Learning").
 
     ``out`` is locked for the run (``runs.locked``); ``allow_other_code`` lets ``resume``
-    continue a run that other code made, and records that it did.
+    continue a run that other code made, and records that it did.  A checkpoint is written
+    after the first chunk ``checkpoint_every_s`` wall seconds after the last (0: after every
+    chunk) and after the last chunk; the results do not depend on it.
 
     ``processes``: the group of processes (``mjxcpg.jaxutil.processes.join``) that runs the
     learners together, every one calling ``sweep`` alike.  Process 0 alone reads and writes
@@ -46,7 +49,7 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
             processes.barrier()  # until process 0 has written the report
             return None
         summary = _sweep_here(spec, Path(out), engine, resume, force, progress, tensorboard, allow_other_code,
-                              processes)
+                              processes, checkpoint_every_s)
         processes.barrier()
         return summary
     except BaseException as error:
@@ -55,14 +58,14 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
 
 
 def _sweep_here(spec: RunSpec, out: Path, engine, resume, force, progress, tensorboard, allow_other_code,
-                processes: jax_processes.Group) -> dict:
+                processes: jax_processes.Group, checkpoint_every_s: float) -> dict:
     with runs.locked(out):
         if resume and runs.is_finished(out):
             runs.share_start(processes, None, None)
             return finished_summary(out, spec)
         sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
                                                 tensorboard=tensorboard, allow_other_code=allow_other_code,
-                                                group=processes)
+                                                group=processes, checkpoint_every_s=checkpoint_every_s)
         summary = run_report.write_report(out, spec, sim, task, state)
     summary["wall_s"] = wall_s
     return summary

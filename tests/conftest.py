@@ -127,5 +127,5 @@ def finished_quick(tmp_path_factory):
     it must end as."""
     out = tmp_path_factory.mktemp("quick") / "run"
     assert main(["sweep", "--config", "quick", "--out", str(out), "--quiet", "--engine", "native",
-                 "--no-tensorboard"]) == 0
+                 "--no-tensorboard", "--checkpoint-every", "0"]) == 0
     return out

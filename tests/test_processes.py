@@ -19,7 +19,7 @@ from mjxcpg.training import checkpoints, config
 
 from test_runs import assert_same_results, one_line_error
 
-SWEEP = ["sweep", "--quiet", "--engine", "native", "--no-tensorboard"]
+SWEEP = ["sweep", "--quiet", "--engine", "native", "--no-tensorboard", "--checkpoint-every", "0"]
 
 
 def free_port() -> int:

@@ -21,7 +21,7 @@ import pytest
 from mjxcpg.cli import main
 from mjxcpg.training import checkpoints, config, provenance, runs
 
-SWEEP = ["sweep", "--config", "quick", "--quiet", "--engine", "native"]
+SWEEP = ["sweep", "--config", "quick", "--quiet", "--engine", "native", "--checkpoint-every", "0"]
 RESULTS = ("summary.json", "returns.json")
 
 
@@ -70,6 +70,21 @@ def tree_bytes(root: Path) -> dict:
     """Every file under ``root`` but the lock, by path: what a run holds."""
     return {p.relative_to(root): p.read_bytes() for p in root.rglob("*")
             if p.is_file() and p.name != runs.LOCK_NAME}
+
+
+def test_checkpoint_interval_writes_the_end_and_changes_no_result(finished_quick, tmp_path):
+    """Checkpoints after every chunk (``finished_quick``) and only at the end (an interval
+    longer than the run): one checkpoint, holding the state the run ended with (the last of
+    every chunk's), and the same results byte for byte."""
+    run = tmp_path / "run"
+    assert main(SWEEP + ["--out", str(run), "--no-tensorboard", "--checkpoint-every", "1e6"]) == 0
+    assert checkpoint_steps(run) == [1] and checkpoint_steps(finished_quick)[-1] > 1
+    ends, every_chunk = checkpoints.newest_intact(checkpoints.manager_of(run)), \
+        checkpoints.newest_intact(checkpoints.manager_of(finished_quick))
+    assert ends[1].keys() == every_chunk[1].keys()
+    for key in ends[1]:
+        np.testing.assert_array_equal(ends[1][key], every_chunk[1][key], err_msg=key)
+    assert_same_results(run, finished_quick)
 
 
 # ---------------------------------------------------------------- damaged checkpoints
@@ -278,7 +293,8 @@ def test_ten_kills_at_random_moments_end_as_the_uninterrupted_run(tmp_path, caps
     spec = config.spec_to_dict(config.load_spec("quick")) | {"chunk_seconds": 0.5}
     path = tmp_path / "quick_short_chunks.json"
     path.write_text(json.dumps(spec))
-    sweep = [sys.executable, "-m", "mjxcpg", "sweep", "--config", str(path), "--quiet", "--engine", "native"]
+    sweep = [sys.executable, "-m", "mjxcpg", "sweep", "--config", str(path), "--quiet", "--engine", "native",
+             "--checkpoint-every", "0"]
 
     reference = tmp_path / "reference"
     start = time.perf_counter()

@@ -37,7 +37,7 @@ def test_sigkill_then_resume_matches_uninterrupted_run(finished_quick, tmp_path)
     show that the events change nothing, and the events hold each trial once."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mjxcpg", "sweep", "--config", "quick", "--out", str(out), "--quiet",
-           "--engine", "native"]
+           "--engine", "native", "--checkpoint-every", "0"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:

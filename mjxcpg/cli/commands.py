@@ -65,7 +65,8 @@ def _learn_or_sweep(spec, args, out: Path) -> dict | None:
     from mjxcpg import api
 
     return api.sweep(spec, out, args.engine, resume=args.resume, force=args.force, progress=not args.quiet,
-                     tensorboard=args.tensorboard, allow_other_code=args.allow_other_code, processes=args.group)
+                     tensorboard=args.tensorboard, allow_other_code=args.allow_other_code, processes=args.group,
+                     checkpoint_every_s=args.checkpoint_every)
 
 
 def cmd_learn(args: argparse.Namespace) -> dict | None:

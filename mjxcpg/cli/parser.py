@@ -41,8 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.training.config import config_names, range_of
     from mjxcpg.training.controls import CONTROLS
     from mjxcpg.training.online import REWARD_SOURCES
+    from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     seconds = _number(checks.POSITIVE)
+    non_negative = _number(checks.NON_NEGATIVE)
     count = _number(checks.COUNT)
     index = _number(checks.INDEX)
     slope = _number(checks.Range(low=-MAX_SLOPE_DEG, high=MAX_SLOPE_DEG))
@@ -74,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quiet", action="store_true", help="no progress line")
         p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                        help="write no TensorBoard event files (OUT/tensorboard)")
+        p.add_argument("--checkpoint-every", metavar="SECONDS", type=non_negative,
+                       default=CHECKPOINT_EVERY_S,
+                       help=f"checkpoint after the first chunk this long after the last, and at the end "
+                            f"(default {CHECKPOINT_EVERY_S:g}; 0: after every chunk)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
         several = p.add_argument_group(
             "several processes", "run the learners in cooperating processes, on one host or many "

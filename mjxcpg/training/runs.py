@@ -1,12 +1,15 @@
-"""Run directories: config, orbax checkpoints every chunk, resume, results, a lock.
+"""Run directories: config, orbax checkpoints, resume, results, a lock.
 
 ``DIR/config.json`` (the run spec, the engine, and the code that made the run: see
 ``mjxcpg.training.provenance``), ``DIR/checkpoints/`` (``mjxcpg.training.checkpoints``: orbax, the
 full state: physics, CPG, learner weights, traces, RNG keys, bookkeeping, with the config's
 sha256 and a sha256 of it all),
 ``DIR/summary.json`` (written last: a run directory that holds it is finished), ``DIR/.lock``.
-A run resumed from a checkpoint ends exactly as an uninterrupted one: chunk boundaries and
-every random draw are functions of the config and seeds alone.
+A checkpoint is written after the first chunk that ends ``checkpoint_every_s`` wall seconds
+(``CHECKPOINT_EVERY_S`` by default; 0: every chunk) or more after the last one began, and
+after the last chunk.  A run resumed from a checkpoint ends exactly as an uninterrupted one:
+chunk boundaries and every random draw are functions of the config and seeds alone, not of
+which chunks were checkpointed.
 
 What can go wrong, and what then happens:
 
@@ -48,6 +51,10 @@ from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.progress import RunProgress
 
 LOCK_NAME = ".lock"
+# A checkpoint hashes and writes the whole state, on threads that the physics then lacks: a
+# short chunk of a few learners costs much less.  Written at most this often, a kill loses
+# at most this many wall seconds of learning, plus one chunk.
+CHECKPOINT_EVERY_S = 10.0
 
 
 def notice(text: str) -> None:
@@ -188,9 +195,10 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
 def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
             force: bool = False, progress: bool = True,
             tensorboard: bool = True, allow_other_code: bool = False,
-            group: processes.Group = processes.ALONE,
+            group: processes.Group = processes.ALONE, checkpoint_every_s: float = CHECKPOINT_EVERY_S,
             ) -> tuple[Simulation, train.Task, train.RunState, float]:
-    """Run (or resume) to the end, checkpointing after every chunk, with a progress line
+    """Run (or resume) to the end, checkpointing every ``checkpoint_every_s`` wall seconds
+    and at the end (module docstring), with a progress line
     (``progress``) and TensorBoard event files (``tensorboard``, ``mjxcpg.training.events``).
     The caller holds ``locked(out)``.  With several processes (``group``) this is process 0,
     and the others run ``follow`` meanwhile.
@@ -200,7 +208,8 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     start = time.perf_counter()
     try:
         share_start(group, sim.engine.name, state)
-        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard, group)
+        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard, group,
+                             checkpoint_every_s)
     finally:
         try:
             written(out, manager.wait_until_finished)
@@ -237,9 +246,11 @@ def follow(spec: train.RunSpec, group: processes.Group) -> train.RunState | None
 
 def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
                  checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool,
-                 group: processes.Group = processes.ALONE) -> train.RunState:
-    """Chunks until every learner is done; after each, a checkpoint (unless ``checkpoints`` is
-    None), the progress line and the event files of ``out``; over the processes of ``group``
+                 group: processes.Group = processes.ALONE,
+                 checkpoint_every_s: float = CHECKPOINT_EVERY_S) -> train.RunState:
+    """Chunks until every learner is done; after each, the progress line and the event files
+    of ``out``, and a checkpoint (unless ``checkpoints`` is None) when ``checkpoint_every_s``
+    have passed since the last began or the run has ended; over the processes of ``group``
     (``train.run_until_done``)."""
     run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
     book = jax.device_get(state.learners.book)
@@ -248,11 +259,15 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
     if run_events is not None:  # a resumed checkpoint may hold trials that a kill kept from the events
         run_events.write_trials(book, done)
 
+    last_checkpoint = time.monotonic()
+
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
-        if checkpoints is not None:
-            written(out, lambda: save_next(checkpoints, new_state, spec))
+        nonlocal last_checkpoint
         book = jax.device_get(new_state.learners.book)
         done = train.done_mask(task, new_state.learners)
+        if checkpoints is not None and (done.all() or time.monotonic() - last_checkpoint >= checkpoint_every_s):
+            last_checkpoint = time.monotonic()
+            written(out, lambda: save_next(checkpoints, new_state, spec))
         measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
                                counts["robot_steps_per_s"])
         if run_events is not None:
