@@ -2,10 +2,11 @@
 
 At 10%, 50% and 90% of the run's wall time (as ``bench/eta_accuracy.py``), each learner's
 trials and falls up to then are read back from its TensorBoard events, and
-``progress.expected_total_trials`` gives its trials left: from its finished peers or Lindy's
-law, without the fall-rate bound, then bounded by the streak its fall rate over the last 50
-trials (the progress line's) or 20 trials predicts. Printed for the learner
-that in fact had the most trials left (the run's critical path), beside that true figure.
+``progress.sampled_total_trials`` draws every learner's total (``progress.ETA_DRAWS`` draws):
+from its finished peers or Lindy's law, bounded by the streak its fall rate over the last 50
+trials predicts (the progress line's), or over the last 20, or not bounded.  Printed: the
+trials left of the learner that in fact had the most (the run's critical path), and the mean
+over the draws of the most trials any learner has left, which is what the batch waits for.
 
     NPROC=1 .venv/bin/python bench/eta_replay.py runs/paper
 """
@@ -30,8 +31,10 @@ def replay(run: Path) -> None:
     events = [[(wall, values["trial/fell"] > 0.5) for wall, _, values in read_events(f)] for f in folders]
     total = np.array([len(e) for e in events])
     walls = sorted({wall for e in events for wall, _ in e})
-    print(f"{run}\n| at | learner | trials then | trials left | peers or Lindy | bounded, last 50 | last 20 |\n"
-          "|---|---|---|---|---|---|---|")
+    print(f"{run}: trials left, as they were and as drawn (mean over {progress.ETA_DRAWS} draws)\n"
+          "| at | learners left | most left | drawn: most left, bounded by last 50 | last 20 | not bounded "
+          "| learner with most left | its trials then | its trials left | drawn, last 50 |\n"
+          "|---|---|---|---|---|---|---|---|---|---|")
     for fraction in FRACTIONS:
         then = walls[0] + fraction * (walls[-1] - walls[0])
         trials = np.array([sum(wall <= then for wall, _ in e) for e in events])
@@ -45,15 +48,15 @@ def replay(run: Path) -> None:
                     to_success[i] = n + 1
         done = trials >= total
         critical = int(np.argmax(total - trials))
-        guesses = []
-        for window in (None, 50, 20):
-            rate = None
-            if window:
-                rate = progress.recent_fall_rate(falls, trials, window)
-            guesses.append(progress.expected_total_trials(trial, k_s, trials, streak, to_success, done, rate)
-                           [critical] - trials[critical])
-        print(f"| {fraction:.0%} | {critical} | {trials[critical]} | {total[critical] - trials[critical]} | "
-              + " | ".join(f"{g:.0f}" for g in guesses) + " |")
+        left = {}
+        for window in (50, 20, None):
+            rate = progress.recent_fall_rate(falls, trials, window) if window else None
+            left[window] = progress.sampled_total_trials(trial, k_s, trials, streak, to_success, done,
+                                                         progress.ETA_DRAWS, np.random.default_rng(0), rate) - trials
+        print(f"| {fraction:.0%} | {int(np.sum(~done))} | {np.max(total - trials)} | "
+              + " | ".join(f"{left[w].max(axis=1).mean():.0f}" for w in (50, 20, None))
+              + f" | {critical} | {trials[critical]} | {total[critical] - trials[critical]} "
+              f"| {left[50][:, critical].mean():.0f} |")
 
 
 if __name__ == "__main__":

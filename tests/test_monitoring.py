@@ -13,9 +13,8 @@ from tensorboard.compat.proto.event_pb2 import Event
 
 from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training.events import RunEvents, read_scalars
-from mjxcpg.training.progress import (expected_total_trials, lindy_mean, recent_fall_rate,
-                                      remaining_seconds_simulated, trials_to_streak,
-                                      wall_seconds_left)
+from mjxcpg.training.progress import (lindy_mean, pareto_draws, recent_fall_rate, remaining_seconds_simulated,
+                                      sampled_total_trials, trials_to_streak, wall_seconds_left)
 
 
 def tensorboard_scalars(directory: Path) -> dict[str, list[tuple[int, float]]]:
@@ -82,20 +81,30 @@ def test_a_record_cut_short_ends_its_file(tmp_path):
 TRIAL = TrialParams(max_trials=100, trial_seconds=20.0, success_streak=20, trials_after_success=5)
 
 
-def test_expected_total_trials():
-    k_s = np.array([0.0, 0.0, 10.0, 10.0, 0.0, 10.0])
-    trials = np.array([60, 90, 40, 30, 30, 10])
-    streak = np.array([0, 0, 0, 3, 18, 0])
-    trials_to_success = np.array([-1, 85, 35, -1, -1, 4])
-    done = np.array([False, True, True, False, False, False])
-    totals = expected_total_trials(TRIAL, k_s, trials, streak, trials_to_success, done)
-    assert totals[1] == 90 and totals[2] == 40       # finished: their totals
-    assert totals[0] == 90                           # the finished k_s = 0 learner that ran longer
+DRAWS = 100_000
+
+
+def totals(trials, streak, tts, done, k_s=None, fall_rate=None, trial=TRIAL, draws=DRAWS):
+    """``sampled_total_trials`` of learners given as lists, from a fixed seed."""
+    trials = np.array(trials)
+    return sampled_total_trials(trial, np.zeros(len(trials)) if k_s is None else np.array(k_s), trials,
+                                np.array(streak), np.array(tts), np.array(done), draws,
+                                np.random.default_rng(1), None if fall_rate is None else np.array(fall_rate))
+
+
+def test_sampled_totals_come_from_longer_peers_or_are_exact():
+    drawn = totals(trials=[60, 90, 40, 30, 30, 10], streak=[0, 0, 0, 3, 18, 0], tts=[-1, 85, 35, -1, -1, 4],
+                   done=[False, True, True, False, False, False], k_s=[0.0, 0.0, 10.0, 10.0, 0.0, 10.0], draws=50)
+    assert (drawn[:, 1] == 90).all() and (drawn[:, 2] == 40).all()   # finished: their totals
+    assert (drawn[:, 0] == 90).all()                 # the finished k_s = 0 learner that ran longer
     # the finished k_s = 10 learner that ran longer says 40, but the 17 fall-free trials it
     # still needs and the 5 after them come first
-    assert totals[3] == 30 + 17 + 5
-    assert totals[4] == 90                           # as learner 0
-    assert totals[5] == 4 + 5                        # succeeded: exact
+    assert (drawn[:, 3] == 30 + 17 + 5).all()
+    assert (drawn[:, 4] == 90).all()                 # as learner 0
+    assert (drawn[:, 5] == 4 + 5).all()              # succeeded: exact
+    # two longer peers of its k_s: each drawn, about half the time (50 draws: 25 +- 3.5)
+    mixed = totals(trials=[10, 50, 80], streak=[0, 0, 0], tts=[-1, -1, -1], done=[False, True, True], draws=50)
+    assert set(mixed[:, 0]) == {50, 80} and 10 <= np.sum(mixed[:, 0] == 50) <= 40
 
 
 def test_lindy_mean_is_the_mean_of_the_capped_pareto_tail():
@@ -107,15 +116,38 @@ def test_lindy_mean_is_the_mean_of_the_capped_pareto_tail():
     assert lindy_mean(0, budget) == 0 and lindy_mean(150, budget) == budget
 
 
-def test_expected_total_trials_without_longer_peers_follows_lindys_law_within_the_budget():
-    k_s, streak, tts = np.zeros(3), np.array([0, 0, 15]), np.full(3, -1)
-    done = np.array([True, False, False])
-    totals = expected_total_trials(TRIAL, k_s, np.array([10, 30, 70]), streak, tts, done)
-    assert totals[1] == pytest.approx(30 * (1 + math.log(100 / 30)) + 5)   # then the 5 after success
-    assert totals[2] == pytest.approx(70 * (1 + math.log(100 / 70)) + 5)   # 99.97, within the budget
+def test_pareto_draws_have_lindys_mean():
+    """min(T, B) lies in [t, B], so its standard deviation is below (B - t) / 2 = 35 and the
+    mean of 100,000 draws is within 6 standard errors, 0.66 trial, of ``lindy_mean``."""
+    draws = pareto_draws(30.0, 100.0, DRAWS, np.random.default_rng(0))
+    assert draws.min() >= 30 and draws.max() == 100
+    assert draws.mean() == pytest.approx(lindy_mean(30.0, 100.0), abs=0.66)
+    assert (pareto_draws(0.0, 100.0, 5, np.random.default_rng(0)) == 0).all()
+
+
+def test_totals_without_longer_peers_follow_lindys_law_within_the_budget():
+    drawn = totals(trials=[10, 30, 70], streak=[0, 19, 15], tts=[-1, -1, -1], done=[True, False, False])
+    # learner 1: T + 5 within the budget of 100 is min(T, 95) + 5, of mean lindy_mean(30, 95) + 5
+    # (its one fall-free trial still needed lifts draws below 31 by under one trial: 1/31 of
+    # them, under 0.04 on the mean); within 0.66 trial, as ``test_pareto_draws_have_lindys_mean``
+    assert drawn[:, 1].mean() == pytest.approx(30 * (1 + math.log(95 / 30)) + 5, abs=0.66)
+    assert drawn[:, 2].max() == 100               # the budget, though 70 + 5 trials could exceed it
     # never fewer than the fall-free streak (and the trials after it) still needed
-    assert expected_total_trials(TRIAL, k_s[:2], np.array([3, 4]), np.array([0, 1]), tts[:2],
-                                 np.array([False, False]))[1] == 4 + 19 + 5
+    short = totals(trials=[3, 4], streak=[0, 1], tts=[-1, -1], done=[False, False])
+    assert short[:, 1].min() == 4 + 19 + 5
+
+
+def test_the_slowest_of_several_learners_needs_more_than_one_on_average():
+    """Two learners at t = 100 trials under Lindy's law within B = 1000: the slower one's
+    mean total is the integral of 1 - (1 - t/x)^2 over [0, B], 2 t ln(B / t) + t^2 / B =
+    470.5, against 330.3 for either (``lindy_mean``).  Draws below t + 1 are lifted to the one
+    fall-free trial still needed (probability 1/101, at most 1 trial: under 0.01 on the mean);
+    the maximum's standard deviation is under 450, so 100,000 draws are within 6 standard
+    errors, 8.5 trials."""
+    one_trial_streak = TrialParams(max_trials=1000, trial_seconds=20.0, success_streak=1, trials_after_success=0)
+    drawn = totals(trials=[100, 100], streak=[0, 0], tts=[-1, -1], done=[False, False], trial=one_trial_streak)
+    assert drawn.max(axis=1).mean() == pytest.approx(2 * 100 * math.log(10) + 100 ** 2 / 1000, abs=8.5)
+    assert drawn.mean(axis=0) == pytest.approx([lindy_mean(100, 1000)] * 2, abs=8.5)
 
 
 def test_trials_to_streak_is_the_waiting_time_for_a_run_of_successes():
@@ -145,14 +177,15 @@ def test_recent_fall_rate_counts_the_last_trials_with_laplaces_rule():
 
 
 def test_a_learner_that_rarely_falls_is_expected_to_finish_sooner_than_lindys_law_says():
-    k_s, tts, done = np.zeros(2), np.full(2, -1), np.zeros(2, bool)
-    trials, streak = np.array([60, 60]), np.array([5, 5])
-    lindy = expected_total_trials(TRIAL, k_s, trials, streak, tts, done)
-    bounded = expected_total_trials(TRIAL, k_s, trials, streak, tts, done, np.array([0.02, 0.9]))
-    assert lindy[0] == pytest.approx(60 * (1 + math.log(100 / 60)) + 5)
-    # fall rate 0.02: (0.98^-20 - 0.98^-5) / 0.02 = 19.1 more trials to the streak, then 5
-    assert bounded[0] == pytest.approx(60 + (0.98 ** -20 - 0.98 ** -5) / 0.02 + 5)
-    assert bounded[1] == lindy[1]             # falling in 9 of 10: Lindy's guess is the smaller
+    trials, streak, tts, done = [60, 60], [5, 5], [-1, -1], [False, False]
+    lindy = totals(trials, streak, tts, done)
+    bounded = totals(trials, streak, tts, done, fall_rate=[0.02, 0.9])
+    # fall rate 0.02: (0.98^-20 - 0.98^-5) / 0.02 = 19.1 more trials to the streak, then 5;
+    # Lindy's draws above that are brought down to it
+    bound = 60 + (0.98 ** -20 - 0.98 ** -5) / 0.02 + 5
+    assert bounded[:, 0].max() == pytest.approx(bound)
+    np.testing.assert_array_equal(bounded[:, 0], np.minimum(lindy[:, 0], bound))
+    np.testing.assert_array_equal(bounded[:, 1], lindy[:, 1])   # falling in 9 of 10: no bound below the budget
 
 
 def test_remaining_seconds_count_the_streak_at_full_length():
@@ -174,8 +207,9 @@ def test_remaining_seconds_count_the_streak_at_full_length():
     seconds = remaining_seconds_simulated(TrialParams(max_trials=20, success_streak=20, trials_after_success=5,
                                                       trial_seconds=20.0), dt, np.zeros(2), book, period,
                                           np.array([False, False]))
-    assert seconds[0] == pytest.approx(10 * 20.0)
-    assert seconds[1] == pytest.approx(3 * 6.0)      # 13 - 10 trials left at its mean 6 s
+    assert seconds.shape == (1, 2)
+    assert seconds[0, 0] == pytest.approx(10 * 20.0)
+    assert seconds[0, 1] == pytest.approx(3 * 6.0)   # 13 - 10 trials left at its mean 6 s
 
 
 def test_wall_seconds_left_follows_the_batch_as_it_shrinks():
@@ -185,3 +219,6 @@ def test_wall_seconds_left_follows_the_batch_as_it_shrinks():
     remaining = np.array([0, 10.0, 0, 40.0, 0, 20.0, 0, 0])
     assert wall_seconds_left(remaining, 8, lambda rows: 1.0 + rows) == 10 * 5 + 10 * 3 + 20 * 3
     assert wall_seconds_left(np.zeros(4), 4, lambda rows: 1.0) == 0.0
+    # draws on a leading axis: each its own; here the second draw has one learner left, 2 rows
+    draws = np.stack([remaining, np.where(remaining == 40.0, 40.0, 0.0)])
+    assert wall_seconds_left(draws, 8, lambda rows: 1.0 + rows).tolist() == [140.0, 40 * 3]

@@ -1,5 +1,6 @@
-"""A run's orbax checkpoints: the full state after every chunk, with the config's sha256 and
-a sha256 of the leaves; the newest intact one read back, damaged ones set aside."""
+"""A run's orbax checkpoints: the full state after a chunk (``runs``: how often), with the
+config's sha256 and a sha256 of the leaves; the newest intact one read back, damaged ones
+set aside."""
 
 from __future__ import annotations
 

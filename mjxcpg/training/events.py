@@ -8,9 +8,12 @@ finished and the estimated time left after every chunk, at step = the trials fin
 learners.
 
 The events are written from the bookkeeping after a chunk, on the host, so a run's results
-are the same with and without them.  A run resumed after a kill may recompute trials whose
-events were written before its last checkpoint; the files already there are read back and
-only steps beyond them are written, so no trial appears twice.
+are the same with and without them, and reach the disk at ``flush`` (a run flushes with each
+checkpoint: a flush syncs every file written to, which a short chunk would feel).  A run
+resumed after a kill may recompute trials whose events were written before its last
+checkpoint; the files already there are read back and only steps beyond them are written, so
+no trial appears twice, and trials whose events a kill lost are in the checkpoint's
+bookkeeping, from which they are written again.
 """
 
 from __future__ import annotations
@@ -73,8 +76,8 @@ def _last_step(directory: Path) -> int:
 
 
 class _Writer:
-    """One TensorBoard run's new event file, opened at its first event (no thread: every
-    event is written and flushed by the caller, after a chunk)."""
+    """One TensorBoard run's new event file, opened at its first event (no thread: the
+    caller writes every event, after a chunk, and flushes)."""
 
     def __init__(self, directory: Path):
         self.directory = directory
@@ -115,7 +118,6 @@ class RunEvents:
             trials = int(book.trial[i])
             for t in range(self._logged[i], trials):
                 writer.write(t + 1, {tag: getattr(book, field)[i][t] for tag, field in TRIAL_SCALARS.items()}, now)
-            writer.flush()
             self._logged[i] = max(self._logged[i], trials)
             if done[i]:
                 writer.close()
@@ -124,8 +126,12 @@ class RunEvents:
         """The run's ``values`` at ``trials`` trials finished in all, unless already logged."""
         if trials > self._run_logged:
             self._run.write(trials, {f"progress/{k}": v for k, v in values.items()}, time.time())
-            self._run.flush()
             self._run_logged = trials
+
+    def flush(self) -> None:
+        """Every event written so far, to disk."""
+        for writer in self._learners + [self._run]:
+            writer.flush()
 
     def close(self) -> None:
         for writer in self._learners + [self._run]:

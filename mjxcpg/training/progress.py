@@ -2,20 +2,18 @@
 the time left, estimated from the learners' own progress rather than their trial budget.
 
 How many trials a learner still needs is unknown until it meets the success criterion; after
-that its end is exact (``trials_after_success`` more).  Before it, the learner's expected
-total is the mean total of the finished learners of its k_s that have run longer than it
-has (else of any k_s).  When none has, the trials to success are taken as scale-free
-(Lindy's law, a Pareto tail of index 1: a learner that has not succeeded in t trials is as
-likely to need more than 2t as fewer), whose mean within a budget B is t (1 + ln(B / t));
-then the trials after success.  The times to success of this project's learners are
-heavy-tailed in just this way (a few k_s = 0 learners take ten times the others).  A
-learner's own recent falls bound that guess: at its fall rate of the last
-``RECENT_TRIALS`` trials, the streak it needs takes ``trials_to_streak`` trials on average,
-and whichever of the two is smaller is taken (both overestimate a learner that is still
-learning not to fall).  Never fewer than the fall-free streak it still needs, never more
-than the budget.  Its remaining
-trials last as long as its trials so far did on average, except that streak, whose trials
-run to full length.
+that its end is exact (``trials_after_success`` more).  Before it, the learner's total is
+drawn from the totals of the finished learners of its k_s that have run longer than it has
+(else of any k_s).  When none has, the trials to success are taken as scale-free (Lindy's
+law, a Pareto tail of index 1: a learner that has not succeeded in t trials is as likely to
+need more than 2t as fewer), within the budget; then the trials after success.  The times to
+success of this project's learners are heavy-tailed in just this way (a few k_s = 0 learners
+take ten times the others).  A learner's own recent falls bound each draw: at its fall rate
+of the last ``RECENT_TRIALS`` trials, the streak it needs takes ``trials_to_streak`` trials
+on average (an overestimate for a learner that is still learning not to fall).  Never fewer
+than the fall-free streak it still needs, never more than the budget.  Its remaining trials
+last as long as its trials so far did on average, except that streak, whose trials run to
+full length.
 
 The time left follows the batch as it shrinks: learners finish in the order of their
 remaining simulated time, and each stretch runs the rows ``train.compacted_size`` gives
@@ -23,6 +21,12 @@ the learners left.  A batch of b rows costs alpha + beta b wall seconds per simu
 second, fitted to the chunks measured at two or more sizes; until then, beta b_now + alpha
 is taken from the chunks at the one size measured, with alpha = ``FIXED_ROWS`` beta.
 Pace is measured from the session's second chunk on: the first includes compilation.
+
+The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
+draws of every learner's total, not the time left at each learner's mean total: with many
+learners in a heavy tail, the slowest of them needs far more than any one does on average.
+The draws are the same after every chunk (one seed), so the estimate moves only with the
+learners.
 """
 
 from __future__ import annotations
@@ -42,33 +46,45 @@ _RATE_CHUNKS = 5  # chunks whose median wall time per simulated second sets a si
 # (bench/results/2026-11-22-cpu2.json).  It only serves until a run has measured two sizes.
 FIXED_ROWS = 3.0
 RECENT_TRIALS = 50  # the trials whose falls give a learner's current fall rate
+ETA_DRAWS = 256     # draws of the learners' totals; the time left is their mean (module docstring)
 
 
-def expected_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray, streak: np.ndarray,
-                          trials_to_success: np.ndarray, done: np.ndarray,
-                          fall_rate: np.ndarray | None = None) -> np.ndarray:
-    """Per learner, its expected number of trials when it finishes (exact once it is done);
-    ``fall_rate``, each learner's recent fall rate, bounds the guess (module docstring)."""
-    totals = trials.astype(np.float64)
+def sampled_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray, streak: np.ndarray,
+                          trials_to_success: np.ndarray, done: np.ndarray, draws: int,
+                          rng: np.random.Generator, fall_rate: np.ndarray | None = None) -> np.ndarray:
+    """(draws, learners): draws of each learner's number of trials when it finishes (exact
+    once it has succeeded or is done); ``fall_rate``, each learner's recent fall rate, bounds
+    the draws (module docstring)."""
+    totals = np.tile(trials.astype(np.float64), (draws, 1))
     for i in np.flatnonzero(~done):
         if trials_to_success[i] >= 0:
-            totals[i] = trials_to_success[i] + trial.trials_after_success
+            totals[:, i] = trials_to_success[i] + trial.trials_after_success
             continue
         longer = done & (trials > trials[i])
         same_k_s = longer & (k_s == k_s[i])
         peers = trials[same_k_s if same_k_s.any() else longer]
-        guess = peers.mean() if peers.size else lindy_mean(trials[i], trial.max_trials) + trial.trials_after_success
+        if peers.size:
+            guess = rng.choice(peers, draws).astype(np.float64)
+        else:
+            guess = pareto_draws(trials[i], trial.max_trials, draws, rng) + trial.trials_after_success
         if fall_rate is not None:
-            guess = min(guess, trials[i] + trials_to_streak(fall_rate[i], streak[i], trial.success_streak)
-                        + trial.trials_after_success)
+            guess = np.minimum(guess, trials[i] + trials_to_streak(fall_rate[i], streak[i], trial.success_streak)
+                               + trial.trials_after_success)
         least = trials[i] + trial.success_streak - streak[i] + trial.trials_after_success
-        totals[i] = min(max(guess, least), trial.max_trials)
+        totals[:, i] = np.clip(guess, least, trial.max_trials)
     return totals
+
+
+def pareto_draws(trials: float, budget: float, draws: int, rng: np.random.Generator) -> np.ndarray:
+    """Draws of min(T, budget) for T with P(T > x) = trials / x beyond ``trials`` (Lindy's
+    law: T = trials / U, U uniform on (0, 1]); their mean is ``lindy_mean``."""
+    return np.minimum(trials / (1.0 - rng.random(draws)), budget)
 
 
 def lindy_mean(trials: float, budget: float) -> float:
     """The mean of min(T, budget) for T with P(T > x) = trials / x beyond ``trials`` (a Pareto
-    tail of index 1): trials (1 + ln(budget / trials)); 0 before the first trial."""
+    tail of index 1): trials (1 + ln(budget / trials)); 0 before the first trial (the closed
+    form against which ``pareto_draws`` is checked)."""
     return trials * (1.0 + np.log(budget / trials)) if 0 < trials < budget else float(min(trials, budget))
 
 
@@ -96,26 +112,28 @@ def recent_fall_rate(falls: np.ndarray, trials: np.ndarray, window: int = RECENT
     return rates
 
 
-def wall_seconds_left(remaining: np.ndarray, batch: int, cost: Callable[[int], float]) -> float:
+def wall_seconds_left(remaining: np.ndarray, batch: int, cost: Callable[[int], float]) -> np.ndarray:
     """Wall seconds until every learner has simulated its ``remaining`` seconds (0 for the
-    finished), with the rows a chunk runs shrinking as learners finish
-    (``train.compacted_size``) and ``cost(rows)`` wall seconds per simulated second."""
-    levels = np.sort(remaining[remaining > 0])
-    total, previous = 0.0, 0.0
-    for k, level in enumerate(levels):
-        total += (level - previous) * cost(train.compacted_size(len(levels) - k, batch))
-        previous = level
-    return float(total)
+    finished; last axis: learners, any leading axes: draws), with the rows a chunk runs
+    shrinking as learners finish (``train.compacted_size``) and ``cost(rows)`` wall seconds
+    per simulated second."""
+    levels = np.sort(remaining, axis=-1)  # the finished first, at 0: their stretches are empty
+    stretches = np.diff(levels, axis=-1, prepend=0.0)
+    learners = levels.shape[-1]
+    costs = np.array([cost(train.compacted_size(learners - k, batch)) for k in range(learners)])
+    return stretches @ costs
 
 
 def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, book, period: np.ndarray,
-                                done: np.ndarray) -> np.ndarray:
-    """Per learner, the simulated seconds it is expected to need still (``book``: the
-    bookkeeping on the host; ``period``: control periods each learner has run)."""
+                                done: np.ndarray, draws: int = 1, seed: int = 0) -> np.ndarray:
+    """(draws, learners): the simulated seconds each learner may still need, over ``draws``
+    draws of its total trials (``sampled_total_trials`` from a generator seeded ``seed``;
+    ``book``: the bookkeeping on the host; ``period``: control periods each learner has run)."""
     trials = np.asarray(book.trial)
     streak, trials_to_success = np.asarray(book.streak), np.asarray(book.trials_to_success)
     fall_rate = recent_fall_rate(np.asarray(book.falls), trials)
-    remaining = expected_total_trials(trial, k_s, trials, streak, trials_to_success, done, fall_rate) - trials
+    remaining = sampled_total_trials(trial, k_s, trials, streak, trials_to_success, done, draws,
+                                     np.random.default_rng(seed), fall_rate) - trials
     finished_seconds = (np.asarray(period) - np.asarray(book.step)) * dt
     mean_length = np.where(trials > 0, finished_seconds / np.maximum(trials, 1), trial.trial_seconds)
     streak_left = np.where(trials_to_success >= 0, 0, np.maximum(trial.success_streak - streak, 0))
@@ -152,9 +170,9 @@ class RunProgress:
         if self._chunks > 1 and robot_steps_per_s > 0:
             self._costs.setdefault(rows, []).append(active * self.substeps / (robot_steps_per_s * self.dt))
         self._done = np.asarray(done)
-        seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done)
+        seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done, ETA_DRAWS)
         cost = self._cost_model(rows)
-        eta_s = None if cost is None else wall_seconds_left(seconds, len(done), cost)
+        eta_s = None if cost is None else float(np.mean(wall_seconds_left(seconds, len(done), cost)))
         if done.all():
             eta_s = 0.0
         measures = {"learners_finished": int(np.sum(done)), "learners_succeeded": int(np.sum(book.trials_to_success >= 0)),

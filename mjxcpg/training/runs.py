@@ -249,9 +249,9 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
                  group: processes.Group = processes.ALONE,
                  checkpoint_every_s: float = CHECKPOINT_EVERY_S) -> train.RunState:
     """Chunks until every learner is done; after each, the progress line and the event files
-    of ``out``, and a checkpoint (unless ``checkpoints`` is None) when ``checkpoint_every_s``
-    have passed since the last began or the run has ended; over the processes of ``group``
-    (``train.run_until_done``)."""
+    of ``out``, and a checkpoint (unless ``checkpoints`` is None) and a flush of the events
+    when ``checkpoint_every_s`` have passed since the last or the run has ended; over the
+    processes of ``group`` (``train.run_until_done``)."""
     run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
     book = jax.device_get(state.learners.book)
     done = train.done_mask(task, state.learners)
@@ -259,14 +259,16 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
     if run_events is not None:  # a resumed checkpoint may hold trials that a kill kept from the events
         run_events.write_trials(book, done)
 
-    last_checkpoint = time.monotonic()
+    last_saved = time.monotonic()
 
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
-        nonlocal last_checkpoint
+        nonlocal last_saved
         book = jax.device_get(new_state.learners.book)
         done = train.done_mask(task, new_state.learners)
-        if checkpoints is not None and (done.all() or time.monotonic() - last_checkpoint >= checkpoint_every_s):
-            last_checkpoint = time.monotonic()
+        due = done.all() or time.monotonic() - last_saved >= checkpoint_every_s
+        if due:
+            last_saved = time.monotonic()
+        if checkpoints is not None and due:
             written(out, lambda: save_next(checkpoints, new_state, spec))
         measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
                                counts["robot_steps_per_s"])
@@ -274,6 +276,8 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
             run_events.write_trials(book, done)
             run_events.write_progress(measures["trials"], {k: v for k, v in measures.items()
                                                            if k != "trials" and v is not None})
+            if due:
+                run_events.flush()
 
     try:
         return train.run_until_done(sim, task, spec, state, on_chunk, group=group)
