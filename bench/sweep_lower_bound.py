@@ -13,8 +13,10 @@ Both sides count from the first chunk's end (its compilation apart) to the last 
 
 The C cost per robot-step is measured here, on states of the run's own spec: a chunk of
 ``--periods`` control periods of its first 8 learners is recorded (after a warm-up chunk from
-standing), and every recorded (state, servo targets) pair is stepped once.  Run it on the
-machine that made the run, and on a quiet one.
+standing), and every recorded (state, servo targets) pair is stepped once; the fastest of
+``--repeats`` such passes counts, as befits a lower bound.  Runs of one spec and engine share
+one measurement, so that they are compared on the same bound.  Run it on the machine that
+made the run, and on a quiet one.
 
     NPROC=1 .venv/bin/python bench/sweep_lower_bound.py runs/paper [--periods 500]
 
@@ -24,6 +26,7 @@ and their bound.
 
 import argparse
 import dataclasses
+import functools
 import sys
 import time
 from pathlib import Path
@@ -41,8 +44,9 @@ from mjxcpg.training.events import EVENTS_DIR, RUN_NAME, read_events
 SAMPLE_LEARNERS = 8
 
 
-def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int,
-                             cores: int | None) -> tuple[float, float, int, int]:
+@functools.cache
+def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int, cores: int | None,
+                             repeats: int) -> tuple[float, float, int, int]:
     """(seconds per robot-step of raw MuJoCo C on one thread, and on the engine's threads
     (at most ``cores``), those threads, substeps)."""
     sample = dataclasses.replace(spec, k_s=spec.k_s[:SAMPLE_LEARNERS], seeds=spec.seeds[:SAMPLE_LEARNERS])
@@ -65,7 +69,7 @@ def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int
         runner = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
         data = [mujoco.MjData(model) for _ in range(nthread)]
         times = []
-        for _ in range(3):
+        for _ in range(repeats):
             start = time.perf_counter()
             runner.rollout([model] * len(physics), data, physics, control,
                            control_spec=int(mujoco.mjtState.mjSTATE_CTRL), skip_checks=True, nstep=substeps,
@@ -77,10 +81,11 @@ def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int
     return per_step(1), per_step(threads), threads, substeps
 
 
-def lower_bound(run_dir: Path, periods: int, cores: int | None) -> dict:
+def lower_bound(run_dir: Path, periods: int, cores: int | None, repeats: int) -> dict:
     spec, record = runs.read_config(run_dir)
     events = [(wall, values) for wall, _, values in read_events(run_dir / EVENTS_DIR / RUN_NAME)]
-    per_step, per_step_threaded, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods, cores)
+    per_step, per_step_threaded, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods, cores,
+                                                                              repeats)
     chunk_periods = round(spec.chunk_seconds / spec.controller.control_dt)
     bound, robot_steps = 0.0, 0
     phases: dict[int, list[float]] = {}  # rows -> [chunks, wall s, bound s]
@@ -106,6 +111,7 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--periods", type=int, default=500, help="control periods recorded for the C cost")
+    parser.add_argument("--repeats", type=int, default=7, help="passes over the recorded states; the fastest counts")
     parser.add_argument("--cores", type=int, default=None,
                         help="cores the run had (a run pinned with taskset had fewer than its engine's threads)")
     args = parser.parse_args(argv)
@@ -114,7 +120,7 @@ def main(argv: list[str]) -> int:
     print("|---|---|---|---|---|---|---|---|")
     phases = []
     for run in args.runs:
-        r = lower_bound(run, args.periods, args.cores)
+        r = lower_bound(run, args.periods, args.cores, args.repeats)
         print(f"| {r['run']} | {r['engine']} | {r['wall_s']:.1f} | {r['robot_steps']:,} | {r['c_us_per_robot_step']:.2f} "
               f"| {r['c_us_per_robot_step_threads']:.2f} ({r['threads']}) | {r['lower_bound_s']:.1f} | {r['ratio']:.2f} |")
         phases.append(r)
