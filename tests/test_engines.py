@@ -242,6 +242,20 @@ def test_mjx_in_float64_computes_cs_step(one_step):
     assert error.max() <= FLOAT64_VELOCITY_CHANGE_REL, np.sort(error)[-5:]
 
 
+@pytest.mark.slow
+def test_mjx_engine_starts_in_the_precision_jax_runs_in(mujoco_sim):
+    """Under x64 the state ``MjxEngine.init`` returns is float64 throughout, as MJX's own
+    data is, so that a float64 walk steps from it (a float32 position in it breaks the
+    step's loop)."""
+    with jax.enable_x64(True):
+        engine = engines.MjxEngine(mujoco_sim.model, substeps=1)
+        state = engine.init(mujoco_sim.qpos0, 2)
+        floats = {x.dtype for x in jax.tree.leaves(state) if jnp.issubdtype(x.dtype, jnp.floating)}
+        assert floats == {jnp.dtype(jnp.float64)}
+        stepped = jax.jit(engine.step)(state, jnp.zeros((2, mujoco_sim.model.nu)))
+        assert stepped.qpos.dtype == jnp.float64 and np.isfinite(np.asarray(stepped.qpos)).all()
+
+
 def test_one_step_agrees_to_float32_rounding(one_step, mujoco_sim):
     """One 4 ms step from 100 perturbed walking states, MJX (float32) against C (float64),
     both from a zero warm start.  At least 95% of the states agree within the float32

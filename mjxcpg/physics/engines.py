@@ -309,7 +309,7 @@ class MjxEngine(Engine):
     def init(self, qpos: np.ndarray, batch: int):
         mjx = self._mjx
         data = mjx.make_data(self.model, impl="jax")
-        data = data.replace(qpos=jnp.asarray(qpos, jnp.float32))
+        data = data.replace(qpos=jnp.asarray(qpos, data.qpos.dtype))
         data = jax.jit(mjx.forward)(self.mjx_model, data)
         return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), data)
 
