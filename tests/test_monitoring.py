@@ -13,7 +13,7 @@ from tensorboard.compat.proto.event_pb2 import Event
 
 from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training.events import RunEvents, read_scalars
-from mjxcpg.training.progress import (lindy_mean, pareto_draws, recent_fall_rate, remaining_seconds_simulated,
+from mjxcpg.training.progress import (cost_model, lindy_mean, pareto_draws, recent_fall_rate, remaining_seconds_simulated,
                                       sampled_total_trials, trials_to_streak, wall_seconds_left)
 
 
@@ -213,12 +213,24 @@ def test_remaining_seconds_count_the_streak_at_full_length():
 
 
 def test_wall_seconds_left_follows_the_batch_as_it_shrinks():
-    """Three of eight learners left with 10, 20 and 40 simulated seconds: 4 rows for the first
-    10 s (three learners, padded to a power of two), then 2 rows (never one) for the rest;
-    a batch of r rows costs 1 + r wall seconds per simulated second."""
+    """Three of eight learners left with 10, 20 and 40 simulated seconds: three learners on 4
+    rows (padded to a power of two) for the first 10 s, two on 2 rows for the next 10, then
+    one on 2 rows (never one row) for the last 20; a learner on r rows costs 1 + r wall
+    seconds per simulated second."""
     remaining = np.array([0, 10.0, 0, 40.0, 0, 20.0, 0, 0])
-    assert wall_seconds_left(remaining, 8, lambda rows: 1.0 + rows) == 10 * 5 + 10 * 3 + 20 * 3
+    assert wall_seconds_left(remaining, 8, lambda rows: 1.0 + rows) == 10 * 3 * 5 + 10 * 2 * 3 + 20 * 1 * 3
     assert wall_seconds_left(np.zeros(4), 4, lambda rows: 1.0) == 0.0
     # draws on a leading axis: each its own; here the second draw has one learner left, 2 rows
     draws = np.stack([remaining, np.where(remaining == 40.0, 40.0, 0.0)])
-    assert wall_seconds_left(draws, 8, lambda rows: 1.0 + rows).tolist() == [140.0, 40 * 3]
+    assert wall_seconds_left(draws, 8, lambda rows: 1.0 + rows).tolist() == [270.0, 40 * 1 * 3]
+
+
+def test_cost_model_takes_each_size_as_measured_and_the_nearest_for_others():
+    """27 rows measured at 1.0 (the median of its last five chunks; an older, slower one
+    left out) and 8 at 0.5 wall seconds per learner-second: those sizes cost that; 16 and 4
+    are nearest to 8, 2 too (nearer 8 than 27)."""
+    cost = cost_model({27: [9.0, 1.0, 1.0, 1.0, 1.2, 0.8], 8: [0.5]})
+    assert cost(27) == 1.0 and cost(8) == 0.5
+    assert cost(16) == cost(4) == cost(2) == 0.5 and cost(22) == 1.0
+    assert cost_model({4: [0.2], 8: [0.6]})(6) == 0.2      # as near to both: the smaller
+    assert cost_model({}) is None

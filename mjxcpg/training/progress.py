@@ -17,10 +17,11 @@ full length.
 
 The time left follows the batch as it shrinks: learners finish in the order of their
 remaining simulated time, and each stretch runs the rows ``train.compacted_size`` gives
-the learners left.  A batch of b rows costs alpha + beta b wall seconds per simulated
-second, fitted to the chunks measured at two or more sizes; until then, beta b_now + alpha
-is taken from the chunks at the one size measured, with alpha = ``FIXED_ROWS`` beta.
-Pace is measured from the session's second chunk on: the first includes compilation.
+the learners left.  Each learner left costs, in wall seconds per simulated second, what one
+did in the chunks of that many rows (``cost_model``), or in those of the nearest size run:
+physics, one robot per unfinished learner, outweighs the rest, and a finished learner's
+robot is not stepped.  Pace is measured from the session's second chunk on: the first
+includes compilation.
 
 The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
 draws of every learner's total, not the time left at each learner's mean total: with many
@@ -41,10 +42,6 @@ from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training import train
 
 _RATE_CHUNKS = 5  # chunks whose median wall time per simulated second sets a size's pace
-# The part of a batch step's cost that does not grow with its rows, in rows: a line through
-# the native engine's ``full`` throughput at batches 1 and 27 in ``mjxcpg bench``
-# (bench/results/2026-11-22-cpu2.json).  It only serves until a run has measured two sizes.
-FIXED_ROWS = 3.0
 RECENT_TRIALS = 50  # the trials whose falls give a learner's current fall rate
 ETA_DRAWS = 256     # draws of the learners' totals; the time left is their mean (module docstring)
 
@@ -115,12 +112,12 @@ def recent_fall_rate(falls: np.ndarray, trials: np.ndarray, window: int = RECENT
 def wall_seconds_left(remaining: np.ndarray, batch: int, cost: Callable[[int], float]) -> np.ndarray:
     """Wall seconds until every learner has simulated its ``remaining`` seconds (0 for the
     finished; last axis: learners, any leading axes: draws), with the rows a chunk runs
-    shrinking as learners finish (``train.compacted_size``) and ``cost(rows)`` wall seconds
-    per simulated second."""
+    shrinking as learners finish (``train.compacted_size``), and each learner left costing
+    ``cost(rows)`` wall seconds per simulated second in a batch of that many rows."""
     levels = np.sort(remaining, axis=-1)  # the finished first, at 0: their stretches are empty
     stretches = np.diff(levels, axis=-1, prepend=0.0)
     learners = levels.shape[-1]
-    costs = np.array([cost(train.compacted_size(learners - k, batch)) for k in range(learners)])
+    costs = np.array([n * cost(train.compacted_size(n, batch)) for n in range(learners, 0, -1)])
     return stretches @ costs
 
 
@@ -142,6 +139,17 @@ def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, 
     return np.where(done, 0.0, seconds)
 
 
+def cost_model(costs: dict[int, list[float]]) -> Callable[[int], float] | None:
+    """Wall seconds per simulated second of one unfinished learner in a batch of ``rows``,
+    from ``costs``: per size measured, that cost in each of its chunks (the median of the
+    last few sets it).  A size not yet run costs what the nearest size measured did (the
+    smaller of two as near).  None before any measurement."""
+    medians = {rows: float(np.median(c[-_RATE_CHUNKS:])) for rows, c in costs.items() if c}
+    if not medians:
+        return None
+    return lambda rows: medians[min(medians, key=lambda r: (abs(r - rows), r))]
+
+
 class RunProgress:
     """The progress line of a run (tqdm on stderr; nothing when ``enabled`` is false) and
     the measures behind it, updated after every chunk."""
@@ -150,7 +158,8 @@ class RunProgress:
                  enabled: bool = True):
         self.trial, self.dt, self.substeps = trial, dt, substeps
         self.k_s = np.asarray(k_s, np.float64)
-        self._costs: dict[int, list[float]] = {}  # rows -> wall seconds per simulated second, per chunk
+        # rows -> per chunk, wall seconds per simulated second of each unfinished learner
+        self._costs: dict[int, list[float]] = {}
         self._chunks = 0
         self._done = np.asarray(done)
         self._last_time, self._last_trials = time.perf_counter(), trials
@@ -168,10 +177,10 @@ class RunProgress:
         self._chunks += 1
         # The session's first chunk includes compilation: no pace until a chunk without it.
         if self._chunks > 1 and robot_steps_per_s > 0:
-            self._costs.setdefault(rows, []).append(active * self.substeps / (robot_steps_per_s * self.dt))
+            self._costs.setdefault(rows, []).append(self.substeps / (robot_steps_per_s * self.dt))
         self._done = np.asarray(done)
         seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done, ETA_DRAWS)
-        cost = self._cost_model(rows)
+        cost = cost_model(self._costs)
         eta_s = None if cost is None else float(np.mean(wall_seconds_left(seconds, len(done), cost)))
         if done.all():
             eta_s = 0.0
@@ -183,20 +192,6 @@ class RunProgress:
             f"{trials} trials, {trials_per_s:.1f} trials/s, succeeded {measures['learners_succeeded']}, "
             f"ETA {'?' if eta_s is None else _clock(eta_s)}")
         return measures
-
-    def _cost_model(self, rows_now: int) -> Callable[[int], float] | None:
-        """Wall seconds per simulated second of a batch of ``rows``: alpha + beta rows, fitted
-        to the median cost of each size measured; from one size, with alpha = FIXED_ROWS beta."""
-        medians = {rows: float(np.median(c[-_RATE_CHUNKS:])) for rows, c in self._costs.items()}
-        if len(medians) >= 2:
-            beta, alpha = np.polyfit(list(medians), list(medians.values()), 1)
-            if beta > 0 and alpha >= 0:
-                return lambda rows: alpha + beta * rows
-        if not medians:
-            return None
-        rows_seen = rows_now if rows_now in medians else max(medians)
-        beta = medians[rows_seen] / (FIXED_ROWS + rows_seen)
-        return lambda rows: beta * (FIXED_ROWS + rows)
 
     def close(self) -> None:
         self._bar.close()
