@@ -398,7 +398,7 @@ def test_native_step_inside_xla_equals_its_host_callback_bit_for_bit(threaded):
     sim = make_simulation("native")
     engine = engines.NativeEngine(sim.model, sim.engine.substeps, threads=3)
     batch = engines._ROBOTS_PER_THREAD * engine.threads + 1 if threaded else 5
-    assert engine._threaded(batch) == threaded
+    assert engine.threads_for(batch) == (3 if threaded else 1)
     start = engine.init(sim.qpos0, batch)
     nq = sim.model.nq
     # robots 1 and the last: a huge vertical speed; robots 2 and the one before the last: idle

@@ -234,3 +234,6 @@ def test_cost_model_takes_each_size_as_measured_and_the_nearest_for_others():
     assert cost(16) == cost(4) == cost(2) == 0.5 and cost(22) == 1.0
     assert cost_model({4: [0.2], 8: [0.6]})(6) == 0.2      # as near to both: the smaller
     assert cost_model({}) is None
+    # an engine on 2 threads from 16 rows: one learner of 8 rows costs twice one of 27's
+    two_from_16 = cost_model({27: [1.0]}, lambda rows: 2 if rows >= 16 else 1)
+    assert two_from_16(16) == 1.0 and two_from_16(8) == two_from_16(2) == 2.0

@@ -92,6 +92,10 @@ class Engine(abc.ABC):
         """Put the robots where ``mask`` holds back to ``initial``."""
         return tree_where(mask, initial, state)
 
+    def threads_for(self, batch: int) -> int:
+        """The host threads that step a batch of ``batch`` robots side by side."""
+        return 1
+
 
 class CState(NamedTuple):
     physics: jax.Array     # (batch, nstate) float32, mjSTATE_FULLPHYSICS
@@ -249,7 +253,7 @@ class NativeEngine(_CEngine):
             state.physics, state.sensordata, ctrl.astype(jnp.float32),
             jnp.ones(batch, bool) if active is None else active,
             model=np.int64(self.model._address), datas=np.int64(self._ffi_addresses.ctypes.data),
-            threads=np.int64(self.threads if self._threaded(batch) else 1), substeps=np.int64(self.substeps))
+            threads=np.int64(self.threads_for(batch)), substeps=np.int64(self.substeps))
         return CState(physics=physics, sensordata=sensordata)
 
     def _simulate(self, physics, ctrl, pelvis_force=None):
@@ -261,7 +265,7 @@ class NativeEngine(_CEngine):
             xfrc[:, self.pelvis, :3] = pelvis_force
             ctrl = np.concatenate([ctrl, xfrc.reshape(batch, -1)], axis=1)
         control = np.broadcast_to(ctrl[:, None, :], (batch, self.substeps, ctrl.shape[1])).astype(np.float64)
-        runner, datas = (self._pool, self._datas) if self._threaded(batch) else (self._inline, self._datas[:1])
+        runner, datas = (self._pool, self._datas) if self.threads_for(batch) > 1 else (self._inline, self._datas[:1])
         out = self._outputs(batch)
         # The checks and allocations of ``rollout`` cost as much as a tenth of the stepping at
         # the paper's batch; the arrays here are float64, C-ordered and of the right shapes.
@@ -270,9 +274,9 @@ class NativeEngine(_CEngine):
                        initial_warmstart=out.warmstart, state=out.state, sensordata=out.sensordata)
         return out.state[:, -1].copy(), out.sensordata[:, -1].copy()
 
-    def _threaded(self, batch: int) -> bool:
-        """Whether a batch this large is split over the threads."""
-        return batch >= _ROBOTS_PER_THREAD * self.threads
+    def threads_for(self, batch: int) -> int:
+        """All the threads from ``_ROBOTS_PER_THREAD`` robots per thread, else one."""
+        return self.threads if batch >= _ROBOTS_PER_THREAD * self.threads else 1
 
     def _outputs(self, batch: int) -> _RolloutBuffers:
         if batch not in self._buffers:

@@ -18,9 +18,9 @@ full length.
 The time left follows the batch as it shrinks: learners finish in the order of their
 remaining simulated time, and each stretch runs the rows ``train.compacted_size`` gives
 the learners left.  Each learner left costs, in wall seconds per simulated second, what one
-did in the chunks of that many rows (``cost_model``), or in those of the nearest size run:
-physics, one robot per unfinished learner, outweighs the rest, and a finished learner's
-robot is not stepped.  Pace is measured from the session's second chunk on: the first
+did in the chunks of that many rows (``cost_model``), or in those of the nearest size run,
+scaled by the threads the engine steps either size on: physics, one robot per unfinished
+learner, outweighs the rest, and a finished learner's robot is not stepped.  Pace is measured from the session's second chunk on: the first
 includes compilation.
 
 The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
@@ -139,24 +139,32 @@ def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, 
     return np.where(done, 0.0, seconds)
 
 
-def cost_model(costs: dict[int, list[float]]) -> Callable[[int], float] | None:
+def cost_model(costs: dict[int, list[float]],
+               threads_for: Callable[[int], int] = lambda rows: 1) -> Callable[[int], float] | None:
     """Wall seconds per simulated second of one unfinished learner in a batch of ``rows``,
     from ``costs``: per size measured, that cost in each of its chunks (the median of the
     last few sets it).  A size not yet run costs what the nearest size measured did (the
-    smaller of two as near).  None before any measurement."""
+    smaller of two as near), times the threads that stepped that size over those that will
+    step this one (``threads_for(rows)``, the engine's ``threads_for``).  None before any
+    measurement."""
     medians = {rows: float(np.median(c[-_RATE_CHUNKS:])) for rows, c in costs.items() if c}
     if not medians:
         return None
-    return lambda rows: medians[min(medians, key=lambda r: (abs(r - rows), r))]
+
+    def cost(rows: int) -> float:
+        nearest = min(medians, key=lambda r: (abs(r - rows), r))
+        return medians[nearest] * threads_for(nearest) / threads_for(rows)
+
+    return cost
 
 
 class RunProgress:
     """The progress line of a run (tqdm on stderr; nothing when ``enabled`` is false) and
-    the measures behind it, updated after every chunk."""
+    the measures behind it, updated after every chunk; ``threads_for``: the engine's."""
 
     def __init__(self, trial: TrialParams, dt: float, substeps: int, k_s, done: np.ndarray, trials: int,
-                 enabled: bool = True):
-        self.trial, self.dt, self.substeps = trial, dt, substeps
+                 enabled: bool = True, threads_for: Callable[[int], int] = lambda rows: 1):
+        self.trial, self.dt, self.substeps, self._threads_for = trial, dt, substeps, threads_for
         self.k_s = np.asarray(k_s, np.float64)
         # rows -> per chunk, wall seconds per simulated second of each unfinished learner
         self._costs: dict[int, list[float]] = {}
@@ -180,7 +188,7 @@ class RunProgress:
             self._costs.setdefault(rows, []).append(self.substeps / (robot_steps_per_s * self.dt))
         self._done = np.asarray(done)
         seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done, ETA_DRAWS)
-        cost = cost_model(self._costs)
+        cost = cost_model(self._costs, self._threads_for)
         eta_s = None if cost is None else float(np.mean(wall_seconds_left(seconds, len(done), cost)))
         if done.all():
             eta_s = 0.0

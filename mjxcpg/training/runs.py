@@ -255,7 +255,8 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
     run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
     book = jax.device_get(state.learners.book)
     done = train.done_mask(task, state.learners)
-    line = RunProgress(spec.trial, task.dt, sim.engine.substeps, spec.k_s, done, int(np.sum(book.trial)), progress)
+    line = RunProgress(spec.trial, task.dt, sim.engine.substeps, spec.k_s, done, int(np.sum(book.trial)), progress,
+                       sim.engine.threads_for)
     if run_events is not None:  # a resumed checkpoint may hold trials that a kill kept from the events
         run_events.write_trials(book, done)
 
