@@ -14,6 +14,7 @@ from mjxcpg.jaxutil import processes as jax_processes
 from mjxcpg.training import report as run_report
 from mjxcpg.training import runs, train
 from mjxcpg.training.checkpoints import first_line
+from mjxcpg.training import checks
 from mjxcpg.training.config import load_spec, validate
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec
@@ -44,6 +45,7 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
     trials_to_success, mean_vx, ...), with ``wall_s``, the wall time of this session."""
     try:
         spec = validate(config) if isinstance(config, RunSpec) else load_spec(str(config))
+        checks.check("checkpoint_every_s", checkpoint_every_s, checks.NON_NEGATIVE)
         if not processes.writer:
             runs.follow(spec, processes)
             processes.barrier()  # until process 0 has written the report

@@ -82,6 +82,7 @@ class _Writer:
     def __init__(self, directory: Path):
         self.directory = directory
         self._file: EventsWriter | None = None
+        self._unflushed = False
 
     def write(self, step: int, values: dict[str, float], wall_time: float) -> None:
         if self._file is None:
@@ -90,10 +91,12 @@ class _Writer:
                                       filename_suffix=f".{os.getpid()}.{next(_writers_opened)}")
         summary = Summary(value=[Summary.Value(tag=tag, simple_value=float(v)) for tag, v in values.items()])
         self._file.write_event(Event(wall_time=wall_time, step=step, summary=summary))
+        self._unflushed = True
 
     def flush(self) -> None:
-        if self._file is not None:
+        if self._file is not None and self._unflushed:
             self._file.flush()
+            self._unflushed = False
 
     def close(self) -> None:
         if self._file is not None:

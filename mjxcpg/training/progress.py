@@ -19,15 +19,16 @@ The time left follows the batch as it shrinks: learners finish in the order of t
 remaining simulated time, and each stretch runs the rows ``train.compacted_size`` gives
 the learners left.  Each learner left costs, in wall seconds per simulated second, what one
 did in the chunks of that many rows (``cost_model``), or in those of the nearest size run,
-scaled by the threads the engine steps either size on: physics, one robot per unfinished
-learner, outweighs the rest, and a finished learner's robot is not stepped.  Pace is measured from the session's second chunk on: the first
-includes compilation.
+scaled by the threads the engine steps either size on.  This is the C engines' cost:
+physics, one robot per unfinished learner, outweighs the rest, and a finished learner's
+robot is not stepped.  MJX steps every row, so there it holds within one size only.  Pace
+is measured from the session's second chunk on: the first includes compilation.
 
 The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
 draws of every learner's total, not the time left at each learner's mean total: with many
 learners in a heavy tail, the slowest of them needs far more than any one does on average.
-The draws are the same after every chunk (one seed), so the estimate moves only with the
-learners.
+The draws come from one seed after every chunk, a column of uniform numbers per learner,
+so the estimate moves only with the learners.
 """
 
 from __future__ import annotations
@@ -51,8 +52,10 @@ def sampled_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray
                           rng: np.random.Generator, fall_rate: np.ndarray | None = None) -> np.ndarray:
     """(draws, learners): draws of each learner's number of trials when it finishes (exact
     once it has succeeded or is done); ``fall_rate``, each learner's recent fall rate, bounds
-    the draws (module docstring)."""
+    the draws (module docstring).  Each learner has its own column of uniform numbers from
+    ``rng``, so its draws do not move when another learner succeeds or finishes."""
     totals = np.tile(trials.astype(np.float64), (draws, 1))
+    uniform = rng.random((draws, len(trials)))
     for i in np.flatnonzero(~done):
         if trials_to_success[i] >= 0:
             totals[:, i] = trials_to_success[i] + trial.trials_after_success
@@ -61,9 +64,9 @@ def sampled_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray
         same_k_s = longer & (k_s == k_s[i])
         peers = trials[same_k_s if same_k_s.any() else longer]
         if peers.size:
-            guess = rng.choice(peers, draws).astype(np.float64)
+            guess = np.sort(peers)[(uniform[:, i] * peers.size).astype(int)].astype(np.float64)
         else:
-            guess = pareto_draws(trials[i], trial.max_trials, draws, rng) + trial.trials_after_success
+            guess = pareto_draws(trials[i], trial.max_trials, uniform[:, i]) + trial.trials_after_success
         if fall_rate is not None:
             guess = np.minimum(guess, trials[i] + trials_to_streak(fall_rate[i], streak[i], trial.success_streak)
                                + trial.trials_after_success)
@@ -72,10 +75,11 @@ def sampled_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray
     return totals
 
 
-def pareto_draws(trials: float, budget: float, draws: int, rng: np.random.Generator) -> np.ndarray:
+def pareto_draws(trials: float, budget: float, uniform: np.ndarray) -> np.ndarray:
     """Draws of min(T, budget) for T with P(T > x) = trials / x beyond ``trials`` (Lindy's
-    law: T = trials / U, U uniform on (0, 1]); their mean is ``lindy_mean``."""
-    return np.minimum(trials / (1.0 - rng.random(draws)), budget)
+    law: T = trials / (1 - u) for each u of ``uniform``, uniform on [0, 1)); their mean is
+    ``lindy_mean``."""
+    return np.minimum(trials / (1.0 - uniform), budget)
 
 
 def lindy_mean(trials: float, budget: float) -> float:
