@@ -196,19 +196,22 @@ def test_a_learner_that_rarely_falls_is_expected_to_finish_sooner_than_lindys_la
     np.testing.assert_allclose(bounded[:, 1], lindy[:, 1], rtol=1e-12)   # falling in 9 of 10: no bound below the budget
 
 
+class Bookkeeping(NamedTuple):
+    """The part of ``learner.Bookkeeping`` that the time left reads."""
+
+    trial: np.ndarray
+    step: np.ndarray
+    streak: np.ndarray
+    trials_to_success: np.ndarray
+    falls: np.ndarray
+
+
 def test_remaining_seconds_count_the_streak_at_full_length():
     dt = 0.01
 
-    class Bookkeeping(NamedTuple):
-        trial: np.ndarray
-        step: np.ndarray
-        streak: np.ndarray
-        trials_to_success: np.ndarray
-        falls: np.ndarray
-
-    # learner 0: 10 trials of 5 s each, one still running 1 s in; 10 more expected (Lindy's
-    # 10 (1 + ln 2) + 5 after success, capped by the 20-trial budget), 20 of them needed
-    # fall-free: all 10 at 20 s.  Learner 1: succeeded at trial 8, 5 after.
+    # learner 0: 10 trials of 5 s each, one still running 1 s in; it needs at least 20 more
+    # fall-free and 5 after, so every draw is the 20-trial budget: 10 more, all at 20 s.
+    # Learner 1: succeeded at trial 8, 5 after.
     book = Bookkeeping(trial=np.array([10, 10]), step=np.array([100, 0]), streak=np.array([0, 2]),
                        trials_to_success=np.array([-1, 8]), falls=np.ones((2, 20), bool))
     period = np.array([5100, 6000])
@@ -254,13 +257,6 @@ def test_progress_line_time_left_from_a_chunks_pace():
     ran 1,000 robot-steps per second at 2 physics steps per period: a learner costs
     2 / (1000 x 0.01) = 0.2 wall seconds per simulated second.  Time left: 3 s of both,
     then 5 s of one, 0.2 x (3 x 2 + 5 x 1) = 2.2 s."""
-
-    class Bookkeeping(NamedTuple):
-        trial: np.ndarray
-        step: np.ndarray
-        streak: np.ndarray
-        trials_to_success: np.ndarray
-        falls: np.ndarray
 
     book = Bookkeeping(trial=np.array([4, 4]), step=np.array([0, 0]), streak=np.array([2, 1]),
                        trials_to_success=np.array([2, 3]), falls=np.zeros((2, 100), bool))
