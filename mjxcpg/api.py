@@ -12,9 +12,8 @@ from mjxcpg.evaluation import report as evaluation_report
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.jaxutil import processes as jax_processes
 from mjxcpg.training import report as run_report
-from mjxcpg.training import runs, train
+from mjxcpg.training import checks, runs, train
 from mjxcpg.training.checkpoints import first_line
-from mjxcpg.training import checks
 from mjxcpg.training.config import load_spec, validate
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec

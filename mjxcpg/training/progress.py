@@ -48,8 +48,8 @@ ETA_DRAWS = 256     # draws of the learners' totals; the time left is their mean
 
 
 def sampled_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray, streak: np.ndarray,
-                          trials_to_success: np.ndarray, done: np.ndarray, draws: int,
-                          rng: np.random.Generator, fall_rate: np.ndarray | None = None) -> np.ndarray:
+                         trials_to_success: np.ndarray, done: np.ndarray, draws: int,
+                         rng: np.random.Generator, fall_rate: np.ndarray | None = None) -> np.ndarray:
     """(draws, learners): draws of each learner's number of trials when it finishes (exact
     once it has succeeded or is done); ``fall_rate``, each learner's recent fall rate, bounds
     the draws (module docstring).  Each learner has its own column of uniform numbers from
