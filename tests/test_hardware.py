@@ -237,6 +237,7 @@ def test_learner_reads_the_estimator_only_when_asked():
     (["learn", "--robot", "hardware"], "need --from"),
     (["learn", "--from", "/nonexistent/run", "--robot", "hardware"], "no run directory"),
     (["learn", "--from", "/nonexistent/run", "--k-s", "3"], "come from the checkpoint"),
+    (["learn", "--from", "/nonexistent/run", "--checkpoint-every", "0"], "--checkpoint-every does not apply"),
 ])
 def test_online_learning_bad_input_is_one_line(argv, message, capsys, tmp_path):
     assert main(argv + ["--out", str(tmp_path / "out")]) == 2

@@ -115,11 +115,14 @@ def cmd_learn(args: argparse.Namespace) -> dict | None:
 def _learn_online(args: argparse.Namespace) -> dict:
     """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.training.online)."""
     from mjxcpg.training import online
+    from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     if args.k_s is not None or args.seed is not None:
         raise UserError("--k-s and --seed come from the checkpoint with --from")
     if args.resume or args.allow_other_code:
         raise UserError("--resume and --allow-other-code do not apply to --from; rerun with --force")
+    if args.checkpoint_every != CHECKPOINT_EVERY_S:
+        raise UserError("--checkpoint-every does not apply to --from, which saves its learner once, at the end")
     source = Path(args.from_run)
     out = Path(args.out or f"runs/online_{source.name}_learner{args.learner}_{args.robot}")
     trials = 400 if args.trials is None else args.trials
