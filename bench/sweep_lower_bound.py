@@ -4,11 +4,12 @@ From the run's TensorBoard events (``tensorboard/run``: after every chunk, its w
 learners finished and the robot-steps per second), each chunk's robot-steps are known: the
 learners unfinished before it, times its control periods, times the physics steps per
 period.  The lower bound steps that many robots with raw MuJoCo C (``mujoco.rollout``, one
-call over many recorded states) on the threads the run's engine used for that chunk: the
-native engine's threads from ``engines._ROBOTS_PER_THREAD`` robots per thread, else one
-(``--cores``: fewer, for a run pinned to fewer cores than its engine has threads).  On
-several threads the cost per robot-step is measured on those threads, not divided by their
-number: the machine's own scaling counts, as it does for the run.
+call over many recorded states) on the threads the run's engine used for that chunk
+(``Engine.threads_for`` of its rows: the native engine's threads from
+``engines._ROBOTS_PER_THREAD`` robots per thread, else one; ``--cores``: fewer, for a run
+pinned to fewer cores than its engine has threads).  On several threads the cost per
+robot-step is measured on those threads, not divided by their number: the machine's own
+scaling counts, as it does for the run.
 Both sides count from the first chunk's end (its compilation apart) to the last chunk's end.
 
 The C cost per robot-step is measured here, on states of the run's own spec: a chunk of
@@ -29,7 +30,9 @@ import dataclasses
 import functools
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import mujoco
@@ -37,18 +40,24 @@ import numpy as np
 from mujoco import rollout
 
 from mjxcpg.jaxutil import xla
-from mjxcpg.physics import engines
 from mjxcpg.training import runs, train
 from mjxcpg.training.events import EVENTS_DIR, RUN_NAME, read_events
 
 SAMPLE_LEARNERS = 8
 
 
+class CCost(NamedTuple):
+    per_step: float           # seconds per robot-step of raw MuJoCo C on one thread
+    per_step_threaded: float  # the same on the engine's threads (at most ``cores``)
+    threads: int              # those threads
+    substeps: int
+    threads_for: Callable[[int], int]  # the engine's: how many threads stepped a batch of that size
+
+
 @functools.cache
 def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int, cores: int | None,
-                             repeats: int) -> tuple[float, float, int, int]:
-    """(seconds per robot-step of raw MuJoCo C on one thread, and on the engine's threads
-    (at most ``cores``), those threads, substeps)."""
+                             repeats: int) -> CCost:
+    """Raw MuJoCo C's cost per robot-step on the run's states (module docstring)."""
     sample = dataclasses.replace(spec, k_s=spec.k_s[:SAMPLE_LEARNERS], seeds=spec.seeds[:SAMPLE_LEARNERS])
     sim = sample.simulation(engine_name)
     task = train.make_task(sim, sample)
@@ -78,23 +87,22 @@ def c_seconds_per_robot_step(spec: train.RunSpec, engine_name: str, periods: int
             times.append(time.perf_counter() - start)
         return min(times) / (len(physics) * substeps)
 
-    return per_step(1), per_step(threads), threads, substeps
+    return CCost(per_step(1), per_step(threads), threads, substeps, sim.engine.threads_for)
 
 
 def lower_bound(run_dir: Path, periods: int, cores: int | None, repeats: int) -> dict:
     spec, record = runs.read_config(run_dir)
     events = [(wall, values) for wall, _, values in read_events(run_dir / EVENTS_DIR / RUN_NAME)]
-    per_step, per_step_threaded, threads, substeps = c_seconds_per_robot_step(spec, record["engine"], periods, cores,
-                                                                              repeats)
+    c = c_seconds_per_robot_step(spec, record["engine"], periods, cores, repeats)
     chunk_periods = round(spec.chunk_seconds / spec.controller.control_dt)
     bound, robot_steps = 0.0, 0
     phases: dict[int, list[float]] = {}  # rows -> [chunks, wall s, bound s]
     for (start, before), (end, after) in zip(events, events[1:]):
         active = spec.batch - int(before["progress/learners_finished"])
         rows = train.compacted_size(active, spec.batch)
-        steps = active * chunk_periods * substeps
+        steps = active * chunk_periods * c.substeps
         robot_steps += steps
-        chunk_bound = steps * (per_step_threaded if rows >= engines._ROBOTS_PER_THREAD * threads else per_step)
+        chunk_bound = steps * (c.per_step_threaded if c.threads_for(rows) > 1 else c.per_step)
         bound += chunk_bound
         phase = phases.setdefault(rows, [0, 0.0, 0.0])
         phase[0] += 1
@@ -102,8 +110,8 @@ def lower_bound(run_dir: Path, periods: int, cores: int | None, repeats: int) ->
         phase[2] += chunk_bound
     wall = events[-1][0] - events[0][0]
     return {"run": str(run_dir), "engine": record["engine"], "wall_s": wall, "robot_steps": robot_steps,
-            "c_us_per_robot_step": per_step * 1e6, "c_us_per_robot_step_threads": per_step_threaded * 1e6,
-            "threads": threads, "lower_bound_s": bound, "phases": phases,
+            "c_us_per_robot_step": c.per_step * 1e6, "c_us_per_robot_step_threads": c.per_step_threaded * 1e6,
+            "threads": c.threads, "lower_bound_s": bound, "phases": phases,
             "ratio": wall / bound if bound else None}
 
 
