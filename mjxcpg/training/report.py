@@ -121,11 +121,6 @@ def learner_metrics(summary: dict, results: list[dict]) -> list[dict]:
     return rows
 
 
-def read_metrics(run_dir: Path) -> list[dict]:
-    summary = json.loads((run_dir / "summary.json").read_text())
-    return learner_metrics(summary, json.loads((run_dir / "returns.json").read_text()))
-
-
 def arm_rows(label: str, rows: list[dict]) -> list[str]:
     """Table lines for one arm (the learners or a control): per k_s and all together, with
     95% bootstrap intervals over learners."""
@@ -181,9 +176,11 @@ def write_table1(run_dir: Path, summary: dict | None = None) -> str:
     arms = {"learners": learner_metrics(summary, results)}
     walks = {"learners": summary.get("walk")}
     for name in CONTROL_LABELS:
-        if (run_dir / "controls" / name / "summary.json").is_file():
-            arms[name] = read_metrics(run_dir / "controls" / name)
-            walks[name] = json.loads((run_dir / "controls" / name / "summary.json").read_text()).get("walk")
+        control = run_dir / "controls" / name
+        if (control / "summary.json").is_file():
+            control_summary = json.loads((control / "summary.json").read_text())
+            arms[name] = learner_metrics(control_summary, json.loads((control / "returns.json").read_text()))
+            walks[name] = control_summary.get("walk")
     lines = [table1(results), "",
              "Learners and controls, each with its 95% bootstrap interval over learners. Fall rate "
              "and mean return are per trial; the final return is the mean over the last success-streak trials; "
