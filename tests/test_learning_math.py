@@ -218,6 +218,32 @@ def test_learner_update_rates_and_safeguards():
     np.testing.assert_allclose(new.critic, 78 * 0.1 * -10 * 0.01, rtol=1e-5)
 
 
+def test_mean_step_sigma_power_scales_the_printed_gradient_by_sigma_over_sigma_0():
+    """One trace step from zero is dt x grad.  As printed, d ln pi / d w^mu = (v - mu) / sigma^2 b;
+    at power 2, (v - mu) / sigma_0^2 b, sigma_0 = sigmoid(init_w_sigma); at power 1, (v - mu) /
+    (sigma sigma_0) b: at v - mu = 0.3, sigma = 0.2 and sigma_0 = sigmoid(-1) = 0.2689, the
+    printed factor is 0.3 / 0.04 = 7.5, at power 2 0.3 / 0.07233 = 4.148 and at power 1
+    0.3 / 0.05379 = 5.578; sigma's own trace is unchanged."""
+    b = jnp.array([0.25, 0.75])
+    v, mean, std, dt = jnp.float32(0.8), jnp.float32(0.5), jnp.float32(0.2), 0.01
+    printed = ac.LearnerParams(init_w_sigma=-1.0)
+    scaled = ac.LearnerParams(init_w_sigma=-1.0, mean_step_sigma_power=2.0)
+    linear = ac.LearnerParams(init_w_sigma=-1.0, mean_step_sigma_power=1.0)
+    sigma_0 = 1.0 / (1.0 + math.exp(1.0))
+    zero = ac.init_traces(2)
+    as_printed = ac.accumulate_traces(printed, zero, b, v, mean, std, dt)
+    as_scaled = ac.accumulate_traces(scaled, zero, b, v, mean, std, dt)
+    np.testing.assert_allclose(as_printed.mean, dt * 7.5 * b, rtol=1e-5)
+    np.testing.assert_allclose(as_scaled.mean, dt * 0.3 / sigma_0**2 * b, rtol=1e-5)
+    np.testing.assert_allclose(ac.accumulate_traces(linear, zero, b, v, mean, std, dt).mean,
+                               dt * 0.3 / (0.2 * sigma_0) * b, rtol=1e-5)
+    np.testing.assert_allclose(as_scaled.sigma, as_printed.sigma, rtol=1e-6)
+    # at sigma = sigma_0 the two agree: the first steps are the printed ones
+    at_start = ac.accumulate_traces(scaled, zero, b, v, mean, jnp.float32(sigma_0), dt)
+    np.testing.assert_allclose(at_start.mean, ac.accumulate_traces(printed, zero, b, v, mean, jnp.float32(sigma_0), dt).mean,
+                               rtol=1e-5)
+
+
 def _critic_step(params, dt, weights, traces, b, b_prev, reward, noise, cached_value=None):
     """One control step in the order of the module docstring; returns new state and V."""
     value = ngnet.ngnet_value(weights.critic, b)

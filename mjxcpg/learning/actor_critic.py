@@ -35,6 +35,7 @@ Pure JAX in float32 for one learner; ``vmap`` over learners (``LearnerParams`` i
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import jax
@@ -78,7 +79,16 @@ class LearnerParams:
     # The fall's TD error as the integral of an impulse over its period (see
     # ``terminal_td_error``): delta = (r_fall - V(t - dt)) / dt instead of r_fall - V(t - dt).
     fall_impulse: bool = False
+    # p of the factor (sigma / sigma_0)^p on d ln pi / d w^mu, sigma_0 the initial sigma (see
+    # ``mean_gradient_scale``): 0 as printed; 2 makes the mean's steps shrink with the
+    # exploration instead of growing as 1 / sigma.
+    mean_step_sigma_power: float = 0.0
     w_sigma_bounds: tuple[float, float] | None = (-2.0, 2.0)
+
+    @property
+    def initial_sigma(self) -> float:
+        """sigma_0 = sigmoid(``init_w_sigma``), eq (26) at the initial weights."""
+        return 1.0 / (1.0 + math.exp(-self.init_w_sigma))
 
     @property
     def v_scale(self) -> float:
@@ -182,6 +192,22 @@ def learner_update(params: LearnerParams, weights: Weights, traces: Traces,
     )
 
 
+def mean_gradient_scale(params: LearnerParams, std: jax.Array) -> jax.Array | float:
+    """The factor (sigma / sigma_0)^p on eq (21)'s d ln pi / d w^mu, p =
+    ``params.mean_step_sigma_power``: 1 as printed (p = 0).
+
+    As printed, the gradient (v - mu) / sigma^2 b = n / sigma b grows as sigma shrinks, so
+    the mean's steps grow as exploration ends.  sigma^2 is the inverse of the Fisher
+    information of the Gaussian's mean: at p = 2 the gradient (v - mu) / sigma_0^2 b = n sigma /
+    sigma_0^2 b has the natural gradient's dependence on sigma; at p = 1, n / sigma_0 b, the
+    steps do not depend on sigma.  Normalised so that the first steps, at sigma_0, are the
+    printed ones.
+    """
+    if params.mean_step_sigma_power == 0.0:
+        return 1.0
+    return (std / params.initial_sigma) ** params.mean_step_sigma_power
+
+
 def accumulate_traces(params: LearnerParams, traces: Traces, b: jax.Array, v: jax.Array,
                       mean: jax.Array, std: jax.Array, dt: float,
                       previous_noise: jax.Array | float = 0.0,
@@ -195,6 +221,7 @@ def accumulate_traces(params: LearnerParams, traces: Traces, b: jax.Array, v: ja
     """
     decay = noise_decay(params.noise_correlation_s, dt)
     grad_mean, grad_sigma = log_policy_gradients(v, mean, std, b, decay, previous_noise, previous_b)
+    grad_mean = mean_gradient_scale(params, std) * grad_mean
     return Traces(
         critic=decay_trace(traces.critic, b, dt, params.kappa_c),
         mean=decay_trace(traces.mean, grad_mean, dt, params.kappa_mu),

@@ -113,6 +113,7 @@ RANGES: dict[str, Range] = {
     "learner.noise_correlation_s": NON_NEGATIVE,
     "learner.rate_scale": NON_NEGATIVE,
     "learner.max_abs_td_error": POSITIVE,
+    "learner.mean_step_sigma_power": NON_NEGATIVE,
     "trial.trial_seconds": POSITIVE,
     "trial.hand_seconds": NON_NEGATIVE,
     "trial.velocity_filter_s": POSITIVE,
@@ -245,7 +246,7 @@ def spec_to_dict(spec: RunSpec) -> dict:
 # order they were added, with the value that a run recorded without it had: such a run's
 # record is the spec without that key and every later one.
 ADDED_KEYS = {("learner", "unit_slope"): False, ("platform",): robots.DEFAULT_PLATFORM,
-              ("learner", "fall_impulse"): False}
+              ("learner", "fall_impulse"): False, ("learner", "mean_step_sigma_power"): 0.0}
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
