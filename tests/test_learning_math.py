@@ -239,9 +239,10 @@ def test_mean_step_sigma_power_scales_the_printed_gradient_by_sigma_over_sigma_0
                                dt * 0.3 / (0.2 * sigma_0) * b, rtol=1e-5)
     np.testing.assert_allclose(as_scaled.sigma, as_printed.sigma, rtol=1e-6)
     # at sigma = sigma_0 the two agree: the first steps are the printed ones
-    at_start = ac.accumulate_traces(scaled, zero, b, v, mean, jnp.float32(sigma_0), dt)
-    np.testing.assert_allclose(at_start.mean, ac.accumulate_traces(printed, zero, b, v, mean, jnp.float32(sigma_0), dt).mean,
-                               rtol=1e-5)
+    std_0 = jnp.float32(sigma_0)
+    at_start = ac.accumulate_traces(scaled, zero, b, v, mean, std_0, dt)
+    printed_at_start = ac.accumulate_traces(printed, zero, b, v, mean, std_0, dt)
+    np.testing.assert_allclose(at_start.mean, printed_at_start.mean, rtol=1e-5)
 
 
 def _critic_step(params, dt, weights, traces, b, b_prev, reward, noise, cached_value=None):

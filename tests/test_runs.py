@@ -140,7 +140,8 @@ def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, t
     assert config.earlier_spec_dicts(dataclasses.replace(spec, platform="child")) == [
         before_power | {"platform": "child"}, before_impulse | {"platform": "child"}]   # not before platform
     impulse = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, fall_impulse=True))
-    assert config.earlier_spec_dicts(impulse) == [before_power | {"learner": before_power["learner"] | {"fall_impulse": True}}]
+    impulse_true = {"fall_impulse": True}
+    assert config.earlier_spec_dicts(impulse) == [before_power | {"learner": before_power["learner"] | impulse_true}]
     power = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, mean_step_sigma_power=2.0))
     assert config.earlier_spec_dicts(power) == []
 

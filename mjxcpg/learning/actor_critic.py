@@ -201,7 +201,8 @@ def mean_gradient_scale(params: LearnerParams, std: jax.Array) -> jax.Array | fl
     information of the Gaussian's mean: at p = 2 the gradient (v - mu) / sigma_0^2 b = n sigma /
     sigma_0^2 b has the natural gradient's dependence on sigma; at p = 1, n / sigma_0 b, the
     steps do not depend on sigma.  Normalised so that the first steps, at sigma_0, are the
-    printed ones.
+    printed ones.  With correlated noise the gradient, xi / (sigma s) (b_t - a b_{t-1}), is
+    1 / sigma times the same kind of factor, and is scaled alike.
     """
     if params.mean_step_sigma_power == 0.0:
         return 1.0
