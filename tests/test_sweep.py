@@ -178,27 +178,18 @@ def test_controls_need_a_finished_run(tmp_path, capsys):
     assert "no finished run" in capsys.readouterr().err
 
 
-def toml_value(value) -> str:
-    """A TOML literal of a spec value (a bool, a number or a list of numbers)."""
-    if isinstance(value, bool):
-        return str(value).lower()
-    return json.dumps(value)
-
-
 @pytest.mark.slow
 def test_learning_beats_the_controls(tmp_path):
     """Three k_s = 10 learners in the stats config's set-up against controls (a) and (b) of
     the same protocol: no learner of control (a) (learning off, sigma as initialised) meets
     the success criterion, and the learners earn more reward over their last 20 trials than
     control (b) (learning off, sigma at its smallest), on average over the three seeds."""
-    stats_spec = config.load_spec("stats")
-    learner = "".join(f"{key} = {toml_value(value)}\n"
-                      for key, value in config.spec_to_dict(stats_spec)["learner"].items() if value is not None)
-    text = ("k_s = [10.0, 10.0, 10.0]\nseeds = [100, 101, 102]\n[trial]\nmax_trials = 400\n"
-            f"trials_after_success = {stats_spec.trial.trials_after_success}\n[learner]\n{learner}")
-    (tmp_path / "small.toml").write_text(text)
+    stats = config.spec_to_dict(config.load_spec("stats"))
+    small = {"k_s": [10.0, 10.0, 10.0], "seeds": [100, 101, 102], "learner": stats["learner"],
+             "trial": {"max_trials": 400, "trials_after_success": stats["trial"]["trials_after_success"]}}
+    (tmp_path / "small.json").write_text(json.dumps(small))
     run = tmp_path / "run"
-    assert main(["sweep", "--config", str(tmp_path / "small.toml"), "--out", str(run), "--quiet"]) == 0
+    assert main(["sweep", "--config", str(tmp_path / "small.json"), "--out", str(run), "--quiet"]) == 0
     assert main(["controls", "--run", str(run), "--only", "learning_off", "learning_off_min_sigma",
                  "--trials", "200", "--quiet"]) == 0
     arms = json.loads((run / "stats.json").read_text())["arms"]

@@ -35,12 +35,12 @@ Pure JAX in float32 for one learner; ``vmap`` over learners (``LearnerParams`` i
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
+from mjxcpg.learning.ngnet import policy_std
 from mjxcpg.learning.policy import log_policy_gradients, noise_decay
 
 
@@ -84,11 +84,6 @@ class LearnerParams:
     # exploration instead of growing as 1 / sigma.
     mean_step_sigma_power: float = 0.0
     w_sigma_bounds: tuple[float, float] | None = (-2.0, 2.0)
-
-    @property
-    def initial_sigma(self) -> float:
-        """sigma_0 = sigmoid(``init_w_sigma``), eq (26) at the initial weights."""
-        return 1.0 / (1.0 + math.exp(-self.init_w_sigma))
 
     @property
     def v_scale(self) -> float:
@@ -192,9 +187,10 @@ def learner_update(params: LearnerParams, weights: Weights, traces: Traces,
     )
 
 
-def mean_gradient_scale(params: LearnerParams, std: jax.Array) -> jax.Array | float:
+def mean_gradient_scale(params: LearnerParams, std: jax.Array) -> jax.Array:
     """The factor (sigma / sigma_0)^p on eq (21)'s d ln pi / d w^mu, p =
-    ``params.mean_step_sigma_power``: 1 as printed (p = 0).
+    ``params.mean_step_sigma_power`` and sigma_0 eq (26) at ``params.init_w_sigma``: exactly 1
+    as printed (p = 0).
 
     As printed, the gradient (v - mu) / sigma^2 b = n / sigma b grows as sigma shrinks, so
     the mean's steps grow as exploration ends.  sigma^2 is the inverse of the Fisher
@@ -204,9 +200,7 @@ def mean_gradient_scale(params: LearnerParams, std: jax.Array) -> jax.Array | fl
     printed ones.  With correlated noise the gradient, xi / (sigma s) (b_t - a b_{t-1}), is
     1 / sigma times the same kind of factor, and is scaled alike.
     """
-    if params.mean_step_sigma_power == 0.0:
-        return 1.0
-    return (std / params.initial_sigma) ** params.mean_step_sigma_power
+    return (std / policy_std(params.init_w_sigma)) ** params.mean_step_sigma_power
 
 
 def accumulate_traces(params: LearnerParams, traces: Traces, b: jax.Array, v: jax.Array,
