@@ -1,6 +1,8 @@
 """The progress line's time left against the time a run actually had left, read from the
 run's TensorBoard events (``tensorboard/run``: ``progress/eta_s`` after every chunk, with its
-wall time), at 10%, 50% and 90% of the run's wall time from its first chunk to its last.
+wall time), at 10%, 50% and 90% of the run's wall time from its first chunk to its last: the
+estimate the line showed then (that of the last chunk ended by then) against the time left
+from that chunk's end.
 
     python bench/eta_accuracy.py runs/quick [runs/paper ...]
 
@@ -19,7 +21,7 @@ def eta_at_fractions(run_dir: Path) -> list[dict]:
     first, last = events[0][0], events[-1][0]
     rows = []
     for fraction in FRACTIONS:
-        wall, values = min(events, key=lambda e: abs(e[0] - (first + fraction * (last - first))))
+        wall, values = [e for e in events if e[0] <= first + fraction * (last - first)][-1]
         eta, left = values.get("progress/eta_s"), last - wall
         rows.append({"fraction": fraction, "elapsed_s": wall - first, "eta_s": eta, "left_s": left,
                      "ratio": None if eta is None or left <= 0 else eta / left})
@@ -31,6 +33,6 @@ if __name__ == "__main__":
         print(f"{run}: seconds from the first chunk's end to the last chunk's end")
         print("| at | elapsed (s) | ETA (s) | actually left (s) | ETA / left |\n|---|---|---|---|---|")
         for r in eta_at_fractions(Path(run)):
-            eta = "?" if r["eta_s"] is None else f"{r['eta_s']:.1f}"
+            eta = "?" if r["eta_s"] is None else f"{r['eta_s']:.3g}"
             ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
-            print(f"| {r['fraction']:.0%} | {r['elapsed_s']:.1f} | {eta} | {r['left_s']:.1f} | {ratio} |")
+            print(f"| {r['fraction']:.0%} | {r['elapsed_s']:.3g} | {eta} | {r['left_s']:.3g} | {ratio} |")

@@ -1,6 +1,7 @@
 """``mjxcpg eval``: the evaluation protocols, the pelvis push of the engines, the report and
 its one-line errors.  Small budgets throughout; the paper's budgets run in ``make test-slow``."""
 
+import dataclasses
 import json
 import shutil
 
@@ -15,7 +16,7 @@ from mjxcpg.cli import main
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.evaluation import evaluate
 from mjxcpg.evaluation import protocol as eval_protocol
-from mjxcpg.training import runs
+from mjxcpg.training import runs, train
 
 SMALL = ["--fixed-point-steps", "4", "--perturbations", "4", "--slope-seconds", "3",
          "--max-slope-deg", "1", "--push-rounds", "1"]
@@ -65,6 +66,21 @@ def test_return_map_is_deterministic_and_robots_do_not_interact(learned_run):
     again = evaluate.evaluate_return_map(sim, task, weights, [0, 0], params)
     assert first[0] == first[1] == again[0]
     assert first[0]["perturbations"] == 3 and len(set(first[0]["offsets"])) == 3
+
+
+def test_a_control_run_is_evaluated_with_its_own_feedback(learned_run):
+    """A run of the a_5 = 0 control (``trial.actor = "zero"``) is evaluated with a_5 = 0
+    whatever its weights: as the policy whose mean weights are all 0, since its a_5 is
+    a_max g(0) = 0 (g odd), and not as the learned policy its weights hold."""
+    spec, sim, task, state = runs.load_run(learned_run, "native")
+    params = eval_protocol.EvalParams(fixed_point_steps=3, perturbations=3)
+    control_task = train.make_task(sim, dataclasses.replace(
+        spec, trial=dataclasses.replace(spec.trial, actor="zero")))
+    weights = state.learners.weights
+    zero_mean = weights._replace(mean=jnp.zeros_like(weights.mean))
+    control = evaluate.evaluate_return_map(sim, control_task, weights, [0], params)
+    assert control == evaluate.evaluate_return_map(sim, task, zero_mean, [0], params)
+    assert control[0]["mean_vx"] != evaluate.evaluate_return_map(sim, task, weights, [0], params)[0]["mean_vx"]
 
 
 def test_pelvis_force_native_equals_scalar_and_pushes_the_right_way():

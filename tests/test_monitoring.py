@@ -13,9 +13,9 @@ from tensorboard.compat.proto.event_pb2 import Event
 
 from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training.events import RunEvents, read_scalars
-from mjxcpg.training.progress import (RunProgress, cost_model, lindy_mean, pareto_draws, recent_fall_rate,
-                                      remaining_seconds_simulated, sampled_total_trials, trials_to_streak,
-                                      wall_seconds_left)
+from mjxcpg.training.progress import (RunProgress, compile_seconds_left, cost_model, lindy_mean, pareto_draws,
+                                      recent_fall_rate, remaining_seconds_simulated, sampled_total_trials,
+                                      trials_to_streak, wall_seconds_left)
 
 
 def tensorboard_scalars(directory: Path) -> dict[str, list[tuple[int, float]]]:
@@ -253,16 +253,25 @@ def test_cost_model_takes_each_size_as_measured_and_the_nearest_for_others():
 def test_progress_line_time_left_from_a_chunks_pace():
     """Two learners, both past success, 3 and 4 trials left (succeeded at trials 2 and 3, 5
     more after), their trials so far 1 s and 2 s long (4 trials in 400 and 800 periods of
-    10 ms): 3 and 8 simulated seconds left.  The second chunk (the first is compilation)
-    ran 1,000 robot-steps per second at 2 physics steps per period: a learner costs
+    10 ms): 3 and 8 simulated seconds left.  The first chunk, its compilation left out, ran
+    1,000 robot-steps per second at 2 physics steps per period: a learner costs
     2 / (1000 x 0.01) = 0.2 wall seconds per simulated second.  Time left: 3 s of both,
-    then 5 s of one, 0.2 x (3 x 2 + 5 x 1) = 2.2 s."""
+    then 5 s of one, 0.2 x (3 x 2 + 5 x 1) = 2.2 s.  A batch of two compacts to no other
+    size, so no compilation is still to come."""
 
     book = Bookkeeping(trial=np.array([4, 4]), step=np.array([0, 0]), streak=np.array([2, 1]),
                        trials_to_success=np.array([2, 3]), falls=np.zeros((2, 100), bool))
     trial = TrialParams(max_trials=100, success_streak=1, trials_after_success=5, trial_seconds=20.0)
     done, period = np.array([False, False]), np.array([400, 800])
     line = RunProgress(trial, 0.01, 2, [0.0, 0.0], done, 8, enabled=False)
-    assert line.update(book, period, done, 1000.0)["eta_s"] is None      # compilation: no pace yet
-    assert line.update(book, period, done, 1000.0)["eta_s"] == pytest.approx(2.2)
+    assert line.update(book, period, done, 1000.0, compile_s=30.0)["eta_s"] == pytest.approx(2.2)
     line.close()
+
+
+def test_compile_seconds_left_counts_the_sizes_still_to_come():
+    """27 learners, 10 left, 27 rows compiled: the ladder from 10 learners down is 27 rows
+    (9-10 left: 16 rows would be more than half of 27), 8 (5-8), 4 (3-4) and 2 (1-2), three
+    of them new, each at the mean of the compilations measured (4 s and 6 s): 15 s."""
+    assert compile_seconds_left(10, 27, {27}, [4.0, 6.0]) == pytest.approx(15.0)
+    assert compile_seconds_left(10, 27, {27, 8, 4, 2}, [4.0, 6.0]) == 0.0
+    assert compile_seconds_left(10, 27, {27}, []) == 0.0  # nothing measured yet

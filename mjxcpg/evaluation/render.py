@@ -82,13 +82,13 @@ def record_gait(run_dir: Path, learner: int, seconds: float, engine: str | None 
     import jax
 
     from mjxcpg.control import walk
-    from mjxcpg.learning.learner import policy_mean_feedback
+    from mjxcpg.learning.learner import actor_feedback
     from mjxcpg.training import runs
 
     spec, sim, task, state = runs.load_run(run_dir, engine, robot=robot)
     runs.check_learners(spec, [learner])
     weights = jax.tree.map(lambda w: w[learner:learner + 1], state.learners.weights)
-    trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, seconds, record_qpos=True)
+    trace = walk.walk_from_standing(sim, actor_feedback(task), weights, seconds, record_qpos=True)
     summary = walk.summarise(trace, sim.control_dt)[0]
     return Gait(model=sim.model, qpos=np.asarray(trace.qpos[0], np.float64), dt=sim.control_dt,
                 fell=summary.fell, seconds=summary.seconds, mean_vx=summary.mean_vx,

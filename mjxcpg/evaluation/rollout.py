@@ -17,7 +17,7 @@ from mjxcpg.control.sim import Simulation
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.evaluation.protocol import EvalParams, Probe, Protocol, advance_probe, init_probe, probe_drive, probe_finished
 from mjxcpg.jaxutil import xla
-from mjxcpg.learning.learner import Task, policy_mean_feedback
+from mjxcpg.learning.learner import Task, actor_feedback
 from mjxcpg.physics.model import Layout, Observation, observe
 from mjxcpg.robots.description import LEG_JOINTS, RobotDescription
 from mjxcpg.robots.qrio import QRIO
@@ -111,7 +111,7 @@ def is_done(protocol: Protocol, state: EvalState) -> jax.Array:
 
 def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int) -> Callable:
     """A jitted ``chunk(state, weights) -> state`` advancing the batch by ``steps`` periods."""
-    feedback = policy_mean_feedback(task)
+    feedback = actor_feedback(task)
     joints = LegJoints.of(sim.model)
     layout, engine = sim.layout, sim.engine
     pushing = protocol.mode == "push"

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import walk
-from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.physics import hardware
 from mjxcpg.training import report, runs, train
 
@@ -135,7 +135,7 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
     chosen = runs.check_learners(spec, learners)
     rows = jnp.repeat(jnp.asarray(chosen), repeats)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
-    trace = walk.walk_from_standing(sim, policy_mean_feedback(task), weights, seconds)
+    trace = walk.walk_from_standing(sim, actor_feedback(task), weights, seconds)
     gaits = walk.summarise(trace, sim.control_dt)
     succeeded = np.asarray(state.learners.book.trials_to_success)[chosen] >= 0
     results = []

@@ -22,7 +22,8 @@ did in the chunks of that many rows (``cost_model``), or in those of the nearest
 scaled by the threads the engine steps either size on.  This is the C engines' cost:
 physics, one robot per unfinished learner, outweighs the rest, and a finished learner's
 robot is not stepped.  MJX steps every row, so there it holds within one size only.  Pace
-is measured from the session's second chunk on: the first includes compilation.
+leaves compilation out (the loop compiles each size ahead of its first chunk), so the first
+chunk already sets it; each size still to come adds what a compilation took on average.
 
 The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
 draws of every learner's total, not the time left at each learner's mean total: with many
@@ -143,6 +144,14 @@ def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, 
     return np.where(done, 0.0, seconds)
 
 
+def compile_seconds_left(active: int, batch: int, compiled: set[int], compile_seconds: list[float]) -> float:
+    """The compilation still to come while ``active`` learners of ``batch`` finish: one for
+    each size of ``train.compacted_size``'s ladder not in ``compiled``, at the mean of the
+    ``compile_seconds`` measured (0 before any)."""
+    sizes = {train.compacted_size(n, batch) for n in range(1, active + 1)} - compiled
+    return len(sizes) * float(np.mean(compile_seconds)) if compile_seconds else 0.0
+
+
 def cost_model(costs: dict[int, list[float]],
                threads_for: Callable[[int], int] = lambda rows: 1) -> Callable[[int], float] | None:
     """Wall seconds per simulated second of one unfinished learner in a batch of ``rows``,
@@ -172,33 +181,37 @@ class RunProgress:
         self.k_s = np.asarray(k_s, np.float64)
         # rows -> per chunk, wall seconds per simulated second of each unfinished learner
         self._costs: dict[int, list[float]] = {}
-        self._chunks = 0
+        self._compile_seconds: list[float] = []  # each compilation's
         self._done = np.asarray(done)
         self._last_time, self._last_trials = time.perf_counter(), trials
         self._bar = tqdm(total=len(done), initial=int(np.sum(done)), disable=not enabled, dynamic_ncols=True,
                          bar_format="{n_fmt}/{total_fmt} learners finished |{bar}| {elapsed}{postfix}")
 
-    def update(self, book, period: np.ndarray, done: np.ndarray, robot_steps_per_s: float) -> dict:
-        """After a chunk: the measures of the progress line (``eta_s`` None until known)."""
+    def update(self, book, period: np.ndarray, done: np.ndarray, robot_steps_per_s: float,
+               compile_s: float = 0.0) -> dict:
+        """After a chunk: the measures of the progress line (``eta_s`` None until known);
+        ``robot_steps_per_s``: the chunk's pace, its compilation (``compile_s``) left out."""
         now = time.perf_counter()
         trials = int(np.sum(book.trial))
         trials_per_s = (trials - self._last_trials) / max(now - self._last_time, 1e-9)
         self._last_time, self._last_trials = now, trials
         active = int(np.sum(~self._done))
         rows = train.compacted_size(active, len(done))
-        self._chunks += 1
-        # The session's first chunk includes compilation: no pace until a chunk without it.
-        if self._chunks > 1 and robot_steps_per_s > 0:
+        if robot_steps_per_s > 0:
             self._costs.setdefault(rows, []).append(self.substeps / (robot_steps_per_s * self.dt))
+        if compile_s > 0:
+            self._compile_seconds.append(compile_s)
         self._done = np.asarray(done)
         seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done, ETA_DRAWS)
         cost = cost_model(self._costs, self._threads_for)
-        eta_s = None if cost is None else float(np.mean(wall_seconds_left(seconds, len(done), cost)))
+        eta_s = None if cost is None else float(
+            np.mean(wall_seconds_left(seconds, len(done), cost))
+            + compile_seconds_left(int(np.sum(~self._done)), len(done), set(self._costs), self._compile_seconds))
         if done.all():
             eta_s = 0.0
         measures = {"learners_finished": int(np.sum(done)), "learners_succeeded": int(np.sum(book.trials_to_success >= 0)),
                     "trials": trials, "trials_per_s": trials_per_s, "robot_steps_per_s": robot_steps_per_s,
-                    "eta_s": eta_s}
+                    "compile_s": compile_s, "eta_s": eta_s}
         self._bar.n = measures["learners_finished"]
         self._bar.set_postfix_str(
             f"{trials} trials, {trials_per_s:.1f} trials/s, succeeded {measures['learners_succeeded']}, "

@@ -272,7 +272,7 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
         if checkpoints is not None and due:
             written(out, lambda: save_next(checkpoints, new_state, spec))
         measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
-                               counts["robot_steps_per_s"])
+                               counts["robot_steps_per_s"], counts["compile_s"])
         if run_events is not None:
             run_events.write_trials(book, done)
             run_events.write_progress(measures["trials"], {k: v for k, v in measures.items()

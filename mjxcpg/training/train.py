@@ -116,6 +116,25 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
     return chunk
 
 
+class AheadOfTime:
+    """A jitted function compiled ahead of time for each set of argument shapes it is called
+    with (``jit(...).lower(...).compile()``), so that a caller's timing can leave compilation
+    out: ``compile_seconds`` is the time all compilations so far took."""
+
+    def __init__(self, jitted: Callable):
+        self._jitted = jitted
+        self._compiled: dict[tuple, Callable] = {}
+        self.compile_seconds = 0.0
+
+    def __call__(self, *args: Any) -> Any:
+        key = tuple((x.shape, x.dtype, getattr(x, "sharding", None)) for x in jax.tree.leaves(args))
+        if key not in self._compiled:
+            start = time.perf_counter()
+            self._compiled[key] = self._jitted.lower(*args).compile()
+            self.compile_seconds += time.perf_counter() - start
+        return self._compiled[key](*args)
+
+
 def learner_sharding(batch: int) -> jax.sharding.NamedSharding:
     """The learner axis split over as many of this process's JAX devices as divide the batch
     evenly (with several processes, each steps its own learners: ``run_until_done``).
@@ -255,13 +274,15 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
 
     With several processes (``group``), each steps the learners of its block
     (``Group.block``) and all see the whole state after each chunk, so that every process
-    takes the same decisions (when to stop, which rows to compact) as one process would."""
+    takes the same decisions (when to stop, which rows to compact) as one process would.
+    ``on_chunk(state, counts)`` after each chunk: ``progress_counts`` with the chunk's pace
+    (``robot_steps_per_s``, its compilation left out) and its compilation (``compile_s``)."""
     steps = round(spec.chunk_seconds / task.dt)
-    chunk = make_chunk(sim, task, steps)
+    chunk = AheadOfTime(make_chunk(sim, task, steps))
     initial = sim.engine.init(sim.qpos0, spec.batch)
     done = done_mask(task, state.learners)
     while not done.all():
-        start = time.perf_counter()
+        start, compiled_before = time.perf_counter(), chunk.compile_seconds
         rows = compacted_rows(done)
         if group.count > 1:
             state = _chunk_of_processes(chunk, state, initial,
@@ -273,8 +294,10 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
                          shard_learners(take_rows(initial, rows), len(rows)))
             state = put_rows(state, rows, part)
         state = jax.block_until_ready(state)
-        robot_steps_per_s = np.sum(~done) * steps * sim.engine.substeps / (time.perf_counter() - start)
-        counts = progress_counts(task, state.learners) | {"robot_steps_per_s": robot_steps_per_s}
+        compile_s = chunk.compile_seconds - compiled_before
+        stepping_s = time.perf_counter() - start - compile_s
+        counts = progress_counts(task, state.learners) | {
+            "robot_steps_per_s": np.sum(~done) * steps * sim.engine.substeps / stepping_s, "compile_s": compile_s}
         done = done_mask(task, state.learners)
         if on_chunk is not None:
             on_chunk(state, counts)
