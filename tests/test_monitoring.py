@@ -6,6 +6,8 @@ from collections import Counter
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from tensorboard.backend.event_processing.event_file_loader import RawEventFileLoader
@@ -16,6 +18,7 @@ from mjxcpg.training.events import RunEvents, read_scalars
 from mjxcpg.training.progress import (RunProgress, compile_seconds_left, cost_model, lindy_mean, pareto_draws,
                                       recent_fall_rate, remaining_seconds_simulated, sampled_total_trials,
                                       trials_to_streak, wall_seconds_left)
+from mjxcpg.training.train import AheadOfTime
 
 
 def tensorboard_scalars(directory: Path) -> dict[str, list[tuple[int, float]]]:
@@ -275,3 +278,22 @@ def test_compile_seconds_left_counts_the_sizes_still_to_come():
     assert compile_seconds_left(10, 27, {27}, [4.0, 6.0]) == pytest.approx(15.0)
     assert compile_seconds_left(10, 27, {27, 8, 4, 2}, [4.0, 6.0]) == 0.0
     assert compile_seconds_left(10, 27, {27}, []) == 0.0  # nothing measured yet
+
+
+def test_ahead_of_time_compiles_each_shape_once():
+    """The chunk loop's compiler: a shape met again runs what was compiled for it (no new
+    trace, no compile time added); a new shape is traced and compiled, its time added."""
+    traced = []
+
+    def double(x):
+        traced.append(x.shape)
+        return 2 * x
+
+    chunk = AheadOfTime(jax.jit(double))
+    assert chunk(jnp.arange(3.0)).tolist() == [0.0, 2.0, 4.0]
+    first = chunk.compile_seconds
+    assert first > 0
+    assert chunk(jnp.ones(3)).tolist() == [2.0, 2.0, 2.0]
+    assert chunk.compile_seconds == first and traced == [(3,)]
+    chunk(jnp.ones(4))
+    assert chunk.compile_seconds > first and traced == [(3,), (4,)]
