@@ -1,6 +1,7 @@
 """Fig 8's return map per k_s, read from one or more ``mjxcpg eval`` outputs: per k_s the
-policies that fell over the protocol, the smallest, median and largest eigenvalue, and the range of the
-fixed point (the step length the gait returns to); within each k_s with five policies or
+policies that fell over the protocol; over those with an eigenvalue (one that falls before
+its pairs has none), the smallest, median and largest eigenvalue and the range of the fixed
+point (the step length the gait returns to); within each k_s with five such policies or
 more, Spearman's rho between eigenvalue and fixed point.
 
     NPROC=1 .venv/bin/python bench/eigenvalue_by_ks.py runs/stats_eval_hand [runs/ctrl_zero_eval ...]
@@ -20,9 +21,12 @@ def by_ks(eval_dir: Path) -> list[dict]:
     rows = []
     for k_s in sorted({learner["k_s"] for learner in learners}):
         maps = [learner["return_map"] for learner in learners if learner["k_s"] == k_s]
-        eigen = np.array([m["eigenvalue"] for m in maps], float)
-        fixed = np.array([m["fixed_point"] for m in maps], float)
-        rho = spearman(eigen, fixed) if len(maps) >= 5 else None
+        fitted = [m for m in maps if m["eigenvalue"] is not None]  # a policy that fell early has none
+        if not fitted:
+            continue
+        eigen = np.array([m["eigenvalue"] for m in fitted], float)
+        fixed = np.array([m["fixed_point"] for m in fitted], float)
+        rho = spearman(eigen, fixed) if len(fitted) >= 5 else None
         rows.append({"k_s": k_s, "policies": len(maps), "fell": sum(m["fell"] for m in maps),
                      "eigen_min": float(np.min(eigen)), "eigen_median": float(np.median(eigen)),
                      "eigen_max": float(np.max(eigen)),
