@@ -1,6 +1,7 @@
 """What a run reports while it runs: TensorBoard event files (read back with TensorBoard's own
 reader) and the estimate of the time left."""
 
+import dataclasses
 import math
 from collections import Counter
 from pathlib import Path
@@ -18,6 +19,7 @@ from mjxcpg.training.events import RunEvents, read_scalars
 from mjxcpg.training.progress import (RunProgress, compile_seconds_left, cost_model, lindy_mean, pareto_draws,
                                       recent_fall_rate, remaining_seconds_simulated, sampled_total_trials,
                                       trials_to_streak, wall_seconds_left)
+from mjxcpg.training import train
 from mjxcpg.training.train import AheadOfTime
 
 
@@ -281,12 +283,13 @@ def test_compile_seconds_left_counts_the_sizes_still_to_come():
 
 
 def test_ahead_of_time_compiles_each_shape_once():
-    """The chunk loop's compiler: a shape met again runs what was compiled for it (no new
-    trace, no compile time added); a new shape is traced and compiled, its time added."""
+    """The chunk loop's compiler: arguments of a type met before run what was compiled for
+    them (no new trace, no time added); a new shape, dtype or weak type is traced and
+    compiled again, its time added."""
     traced = []
 
     def double(x):
-        traced.append(x.shape)
+        traced.append((x.shape, x.dtype, x.weak_type))
         return 2 * x
 
     chunk = AheadOfTime(jax.jit(double))
@@ -294,6 +297,41 @@ def test_ahead_of_time_compiles_each_shape_once():
     first = chunk.compile_seconds
     assert first > 0
     assert chunk(jnp.ones(3)).tolist() == [2.0, 2.0, 2.0]
-    assert chunk.compile_seconds == first and traced == [(3,)]
+    assert chunk.compile_seconds == first and len(traced) == 1
     chunk(jnp.ones(4))
-    assert chunk.compile_seconds > first and traced == [(3,), (4,)]
+    chunk(jnp.ones(4, jnp.int32))
+    chunk(jnp.asarray(1.0))  # weak type: a Python float's
+    chunk(jnp.float32(1.0))
+    assert chunk.compile_seconds > first
+    assert traced == [((3,), jnp.float32, False), ((4,), jnp.float32, False), ((4,), jnp.int32, False),
+                      ((), jnp.float32, True), ((), jnp.float32, False)]
+
+
+def test_progress_line_adds_a_compilation_for_each_size_still_to_come():
+    """Four learners past success, 4 rows compiled in the first chunk (30 s): three have 3 s
+    left, one 4 s (as in the test above: 3 and 4 trials of 1 s).  All four run 3 s on 4
+    rows, 0.2 x 4 x 3 = 2.4 s, then the last runs 1 s on 2 rows (compacted: at most two
+    left), priced as 4 rows, the nearest size measured, 0.2 s, and compiled first: 30 s
+    more.  Time left 2.4 + 0.2 + 30 = 32.6 s."""
+    book = Bookkeeping(trial=np.array([4, 4, 4, 4]), step=np.zeros(4, int), streak=np.array([2, 2, 2, 1]),
+                       trials_to_success=np.array([2, 2, 2, 3]), falls=np.zeros((4, 100), bool))
+    trial = TrialParams(max_trials=100, success_streak=1, trials_after_success=5, trial_seconds=20.0)
+    done, period = np.zeros(4, bool), np.full(4, 400)
+    line = RunProgress(trial, 0.01, 2, [0.0] * 4, done, 16, enabled=False)
+    assert line.update(book, period, done, 1000.0, compile_s=30.0)["eta_s"] == pytest.approx(32.6)
+    line.close()
+
+
+def test_the_loop_compiles_each_batch_size_before_its_first_chunk(quick_spec):
+    """Four quick learners run on 4 rows until at most two are left, then on 2
+    (``compacted_size``): compilation is reported with the first chunk of each size and with
+    no other."""
+    spec = dataclasses.replace(quick_spec, k_s=(10.0, 10.0, 0.0, 0.0), seeds=(0, 1, 2, 3))
+    sim = spec.simulation("native")
+    task = train.make_task(sim, spec)
+    counts = []
+    train.run_until_done(sim, task, spec, train.init_run(sim, task, spec), lambda state, c: counts.append(c))
+    done_before = [0] + [c["done"] for c in counts[:-1]]
+    rows = [train.compacted_size(spec.batch - done, spec.batch) for done in done_before]
+    assert 2 in rows  # the batch did compact
+    assert [c["compile_s"] > 0 for c in counts] == [r not in rows[:i] for i, r in enumerate(rows)]

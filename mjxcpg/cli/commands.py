@@ -26,14 +26,14 @@ def cmd_walk(args: argparse.Namespace) -> dict:
     if args.checkpoint is not None:
         import jax
 
-        from mjxcpg.learning.learner import policy_mean_feedback
+        from mjxcpg.learning.learner import actor_feedback
         from mjxcpg.training.runs import check_learners, load_run
 
         spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
         if args.platform not in (None, spec.platform):
             raise UserError(f"{args.checkpoint} was learned on {spec.platform}, not {args.platform}")
         check_learners(spec, [args.learner])
-        feedback = policy_mean_feedback(task)
+        feedback = actor_feedback(task)
         fb_params = jax.tree.map(lambda w: w[args.learner:args.learner + 1], state.learners.weights)
     else:
         sim = make_simulation(args.engine, args.slope, platform=args.platform or DEFAULT_PLATFORM)

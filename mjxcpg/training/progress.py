@@ -23,7 +23,9 @@ scaled by the threads the engine steps either size on.  This is the C engines' c
 physics, one robot per unfinished learner, outweighs the rest, and a finished learner's
 robot is not stepped.  MJX steps every row, so there it holds within one size only.  Pace
 leaves compilation out (the loop compiles each size ahead of its first chunk), so the first
-chunk already sets it; each size still to come adds what a compilation took on average.
+chunk already sets it; each size still to come adds what a compilation took on average.  (With
+several processes, each compiles for its own block and waits for the others: there the pace
+holds their compilation, and the sizes to come are only the ladder's.)
 
 The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
 draws of every learner's total, not the time left at each learner's mean total: with many
@@ -145,9 +147,10 @@ def remaining_seconds_simulated(trial: TrialParams, dt: float, k_s: np.ndarray, 
 
 
 def compile_seconds_left(active: int, batch: int, compiled: set[int], compile_seconds: list[float]) -> float:
-    """The compilation still to come while ``active`` learners of ``batch`` finish: one for
-    each size of ``train.compacted_size``'s ladder not in ``compiled``, at the mean of the
-    ``compile_seconds`` measured (0 before any)."""
+    """The most compilation still to come while ``active`` learners of ``batch`` finish: one
+    for each size of ``train.compacted_size``'s ladder not in ``compiled``, at the mean of
+    the ``compile_seconds`` measured (0 before any).  A size is skipped when enough learners
+    finish in one chunk, so this is an upper bound."""
     sizes = {train.compacted_size(n, batch) for n in range(1, active + 1)} - compiled
     return len(sizes) * float(np.mean(compile_seconds)) if compile_seconds else 0.0
 
@@ -181,7 +184,8 @@ class RunProgress:
         self.k_s = np.asarray(k_s, np.float64)
         # rows -> per chunk, wall seconds per simulated second of each unfinished learner
         self._costs: dict[int, list[float]] = {}
-        self._compile_seconds: list[float] = []  # each compilation's
+        self._compile_seconds: list[float] = []  # each chunk's that compiled
+        self._compiled_sizes: set[int] = set()
         self._done = np.asarray(done)
         self._last_time, self._last_trials = time.perf_counter(), trials
         self._bar = tqdm(total=len(done), initial=int(np.sum(done)), disable=not enabled, dynamic_ncols=True,
@@ -201,12 +205,13 @@ class RunProgress:
             self._costs.setdefault(rows, []).append(self.substeps / (robot_steps_per_s * self.dt))
         if compile_s > 0:
             self._compile_seconds.append(compile_s)
+            self._compiled_sizes.add(rows)
         self._done = np.asarray(done)
         seconds = remaining_seconds_simulated(self.trial, self.dt, self.k_s, book, period, done, ETA_DRAWS)
         cost = cost_model(self._costs, self._threads_for)
         eta_s = None if cost is None else float(
             np.mean(wall_seconds_left(seconds, len(done), cost))
-            + compile_seconds_left(int(np.sum(~self._done)), len(done), set(self._costs), self._compile_seconds))
+            + compile_seconds_left(int(np.sum(~self._done)), len(done), self._compiled_sizes, self._compile_seconds))
         if done.all():
             eta_s = 0.0
         measures = {"learners_finished": int(np.sum(done)), "learners_succeeded": int(np.sum(book.trials_to_success >= 0)),

@@ -117,9 +117,12 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
 
 
 class AheadOfTime:
-    """A jitted function compiled ahead of time for each set of argument shapes it is called
-    with (``jit(...).lower(...).compile()``), so that a caller's timing can leave compilation
-    out: ``compile_seconds`` is the time all compilations so far took."""
+    """A jitted function of array arguments, traced and compiled ahead of time
+    (``jit(...).lower(...).compile()``) for each argument structure, type (shape, dtype,
+    weak type) and set of devices it is called with, so that a caller's timing can leave
+    that out: ``compile_seconds`` is what all the tracing and compiling so far took.
+    Arguments on the same devices must be sharded alike or equivalently (on one device all
+    are), as the loop's are: a compiled function refuses others."""
 
     def __init__(self, jitted: Callable):
         self._jitted = jitted
@@ -127,7 +130,9 @@ class AheadOfTime:
         self.compile_seconds = 0.0
 
     def __call__(self, *args: Any) -> Any:
-        key = tuple((x.shape, x.dtype, getattr(x, "sharding", None)) for x in jax.tree.leaves(args))
+        leaves, structure = jax.tree.flatten(args)
+        key = (structure, tuple((jax.typeof(x), frozenset(x.sharding.device_set) if hasattr(x, "sharding") else None)
+                                for x in leaves))
         if key not in self._compiled:
             start = time.perf_counter()
             self._compiled[key] = self._jitted.lower(*args).compile()
@@ -220,14 +225,23 @@ def _put_rows(rows: np.ndarray, whole: jax.Array, part: jax.Array) -> np.ndarray
     return whole
 
 
-@jax.jit
-def _take_rows_on_device(tree: Any, rows: jax.Array) -> Any:
+def _gather_rows(tree: Any, rows: jax.Array) -> Any:
     return jax.tree.map(lambda x: x[rows], tree)
 
 
-@jax.jit
-def _put_rows_on_device(tree: Any, rows: jax.Array, part: Any) -> Any:
+def _scatter_rows(tree: Any, rows: jax.Array, part: Any) -> Any:
     return jax.tree.map(lambda whole, p: whole.at[rows].set(p), tree, part)
+
+
+# Compiled ahead of time, as the chunk is: the loop leaves their compilation for a new batch
+# size out of its pace too.
+_take_rows_on_device = AheadOfTime(jax.jit(_gather_rows))
+_put_rows_on_device = AheadOfTime(jax.jit(_scatter_rows))
+
+
+def compile_seconds(chunk: AheadOfTime) -> float:
+    """The tracing and compiling of ``chunk`` and of the row gathers so far (``AheadOfTime``)."""
+    return chunk.compile_seconds + _take_rows_on_device.compile_seconds + _put_rows_on_device.compile_seconds
 
 
 def take_rows(tree: Any, rows: np.ndarray) -> Any:
@@ -276,13 +290,15 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     (``Group.block``) and all see the whole state after each chunk, so that every process
     takes the same decisions (when to stop, which rows to compact) as one process would.
     ``on_chunk(state, counts)`` after each chunk: ``progress_counts`` with the chunk's pace
-    (``robot_steps_per_s``, its compilation left out) and its compilation (``compile_s``)."""
+    (``robot_steps_per_s``) and this process's compilation for it (``compile_s``), which
+    the pace leaves out.  With several processes the pace still holds the time spent
+    waiting for the others, their compilation included."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = AheadOfTime(make_chunk(sim, task, steps))
     initial = sim.engine.init(sim.qpos0, spec.batch)
     done = done_mask(task, state.learners)
     while not done.all():
-        start, compiled_before = time.perf_counter(), chunk.compile_seconds
+        start, compiled_before = time.perf_counter(), compile_seconds(chunk)
         rows = compacted_rows(done)
         if group.count > 1:
             state = _chunk_of_processes(chunk, state, initial,
@@ -294,7 +310,7 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
                          shard_learners(take_rows(initial, rows), len(rows)))
             state = put_rows(state, rows, part)
         state = jax.block_until_ready(state)
-        compile_s = chunk.compile_seconds - compiled_before
+        compile_s = compile_seconds(chunk) - compiled_before
         stepping_s = time.perf_counter() - start - compile_s
         counts = progress_counts(task, state.learners) | {
             "robot_steps_per_s": np.sum(~done) * steps * sim.engine.substeps / stepping_s, "compile_s": compile_s}
