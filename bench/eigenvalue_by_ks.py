@@ -22,15 +22,14 @@ def by_ks(eval_dir: Path) -> list[dict]:
     for k_s in sorted({learner["k_s"] for learner in learners}):
         maps = [learner["return_map"] for learner in learners if learner["k_s"] == k_s]
         fitted = [m for m in maps if m["eigenvalue"] is not None]  # a policy that fell early has none
-        if not fitted:
-            continue
         eigen = np.array([m["eigenvalue"] for m in fitted], float)
         fixed = np.array([m["fixed_point"] for m in fitted], float)
-        rho = spearman(eigen, fixed) if len(fitted) >= 5 else None
-        rows.append({"k_s": k_s, "policies": len(maps), "fell": sum(m["fell"] for m in maps),
-                     "eigen_min": float(np.min(eigen)), "eigen_median": float(np.median(eigen)),
-                     "eigen_max": float(np.max(eigen)),
-                     "fixed_mm": (1e3 * fixed.min(), 1e3 * fixed.max()), "rho": rho})
+        row = {"k_s": k_s, "policies": len(maps), "fell": sum(m["fell"] for m in maps), "fitted": len(fitted)}
+        if fitted:
+            row |= {"eigen_min": float(np.min(eigen)), "eigen_median": float(np.median(eigen)),
+                    "eigen_max": float(np.max(eigen)), "fixed_mm": (1e3 * fixed.min(), 1e3 * fixed.max()),
+                    "rho": spearman(eigen, fixed) if len(fitted) >= 5 else None}
+        rows.append(row)
     return rows
 
 
@@ -39,6 +38,9 @@ if __name__ == "__main__":
         print(f"{run}\n| k_s | policies | fell | eigenvalue: smallest | median | largest | fixed point (mm) "
               "| rho(eigenvalue, fixed point) |\n|---|---|---|---|---|---|---|---|")
         for r in by_ks(Path(run)):
+            if not r["fitted"]:
+                print(f"| {r['k_s']:g} | {r['policies']} | {r['fell']} | - | - | - | - | - |")
+                continue
             rho = "-" if r["rho"] is None else f"{r['rho']:.2f}"
             print(f"| {r['k_s']:g} | {r['policies']} | {r['fell']} | {r['eigen_min']:.3f} | {r['eigen_median']:.3f} | "
                   f"{r['eigen_max']:.3f} | {r['fixed_mm'][0]:.0f}-{r['fixed_mm'][1]:.0f} | {rho} |")

@@ -14,6 +14,7 @@ A run resumed in several sessions counts the pauses between them as time left.""
 import argparse
 from pathlib import Path
 
+from mjxcpg.training import runs
 from mjxcpg.training.events import EVENTS_DIR, RUN_NAME, read_events
 
 FRACTIONS = (0.1, 0.5, 0.9)
@@ -22,7 +23,7 @@ FRACTIONS = (0.1, 0.5, 0.9)
 def eta_at_fractions(run_dir: Path, by: str = "wall") -> list[dict]:
     events = [(wall, values) for wall, _, values in read_events(run_dir / EVENTS_DIR / RUN_NAME)]
     first, last = events[0][0], events[-1][0]
-    batch = max(values["progress/learners_finished"] for _, values in events)
+    batch = runs.read_config(run_dir)[0].batch
     rows = []
     for fraction in FRACTIONS:
         if by == "finished":

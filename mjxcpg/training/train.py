@@ -122,7 +122,8 @@ class AheadOfTime:
     weak type) and set of devices it is called with, so that a caller's timing can leave
     that out: ``compile_seconds`` is what all the tracing and compiling so far took.
     Arguments on the same devices must be sharded alike or equivalently (on one device all
-    are), as the loop's are: a compiled function refuses others."""
+    are), as the loop's are: a compiled function refuses others.  Before it compiles, it
+    waits for its arguments: work still computing them is not counted as compilation."""
 
     def __init__(self, jitted: Callable):
         self._jitted = jitted
@@ -134,6 +135,7 @@ class AheadOfTime:
         key = (structure, tuple((jax.typeof(x), frozenset(x.sharding.device_set) if hasattr(x, "sharding") else None)
                                 for x in leaves))
         if key not in self._compiled:
+            jax.block_until_ready(args)
             start = time.perf_counter()
             self._compiled[key] = self._jitted.lower(*args).compile()
             self.compile_seconds += time.perf_counter() - start
