@@ -116,6 +116,11 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
     return chunk
 
 
+def _devices_of(x: Any) -> frozenset | None:
+    """The devices an array lives on (None for a host array)."""
+    return frozenset(x.sharding.device_set) if hasattr(x, "sharding") else None
+
+
 class AheadOfTime:
     """A jitted function of array arguments, traced and compiled ahead of time
     (``jit(...).lower(...).compile()``) for each argument structure, type (shape, dtype,
@@ -132,8 +137,7 @@ class AheadOfTime:
 
     def __call__(self, *args: Any) -> Any:
         leaves, structure = jax.tree.flatten(args)
-        key = (structure, tuple((jax.typeof(x), frozenset(x.sharding.device_set) if hasattr(x, "sharding") else None)
-                                for x in leaves))
+        key = (structure, tuple((jax.typeof(x), _devices_of(x)) for x in leaves))
         if key not in self._compiled:
             jax.block_until_ready(args)
             start = time.perf_counter()
