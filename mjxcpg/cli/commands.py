@@ -35,6 +35,8 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         check_learners(spec, [args.learner])
         feedback = actor_feedback(task)
         fb_params = jax.tree.map(lambda w: w[args.learner:args.learner + 1], state.learners.weights)
+        # a control's run walks its own feedback, named as --controller names it
+        controller = {"policy": "learned", "zero": "stepping", "hand": "hand"}[task.trial.actor]
     else:
         sim = make_simulation(args.engine, args.slope, platform=args.platform or DEFAULT_PLATFORM)
         if args.controller == "in-place":
@@ -42,10 +44,10 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[args.controller]
         feedback = roll_rate_feedback
         fb_params = jnp.array([gain])
+        controller = args.controller
     trace = walk.walk_from_standing(sim, feedback, fb_params, args.seconds)
     summary = walk.summarise(trace, sim.control_dt)[0].as_dict()
-    summary.update(engine=sim.engine.name, slope_deg=args.slope,
-                   controller="learned" if args.checkpoint else args.controller)
+    summary.update(engine=sim.engine.name, slope_deg=args.slope, controller=controller)
     return summary
 
 
