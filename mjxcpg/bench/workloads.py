@@ -67,17 +67,10 @@ def humanoid_path() -> str:
     return str(path)
 
 
-def _compile(jitted, *args) -> tuple[Callable, float]:
-    """``jitted`` compiled for ``args``, and the seconds that took."""
-    start = time.perf_counter()
-    compiled = jitted.lower(*args).compile()
-    return compiled, time.perf_counter() - start
-
-
 def _compiled(step, state, *args) -> tuple[Callable[[], float], float]:
     """Compile ``state = step(state, *args)`` (``step`` jitted) once; return a runner and the
     compile time."""
-    compiled, compile_s = _compile(step, state, *args)
+    compiled, compile_s = xla.compile_timed(step, state, *args)
 
     def run() -> float:
         nonlocal state
@@ -156,7 +149,7 @@ def _xla_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Calla
         first = jax.tree.map(lambda x: x[0], transitions.physics)
         return jax.lax.scan(one, first, transitions)[0]
 
-    compiled, compile_s = _compile(xla.jit(steps), shapes)
+    compiled, compile_s = xla.compile_timed(xla.jit(steps), shapes)
 
     def replay(transitions: train.Transition) -> float:
         start = time.perf_counter()

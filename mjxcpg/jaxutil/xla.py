@@ -12,6 +12,7 @@ For the same reason the command line gives XLA:CPU one thread (``one_cpu_thread`
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -31,6 +32,14 @@ def compiler_options() -> dict[str, str] | None:
 def jit(fun: Callable, **kwargs: Any) -> Callable:
     """``jax.jit`` with this library's compiler options."""
     return jax.jit(fun, compiler_options=compiler_options(), **kwargs)
+
+
+def compile_timed(jitted: Callable, *args: Any) -> tuple[Callable, float]:
+    """``jitted`` traced and compiled ahead of time for ``args`` (arrays or
+    ``jax.ShapeDtypeStruct``), and the seconds that took."""
+    start = time.perf_counter()
+    compiled = jitted.lower(*args).compile()
+    return compiled, time.perf_counter() - start
 
 
 def one_cpu_thread() -> None:

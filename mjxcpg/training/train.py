@@ -140,9 +140,8 @@ class AheadOfTime:
         key = (structure, tuple((jax.typeof(x), _devices_of(x)) for x in leaves))
         if key not in self._compiled:
             jax.block_until_ready(args)
-            start = time.perf_counter()
-            self._compiled[key] = self._jitted.lower(*args).compile()
-            self.compile_seconds += time.perf_counter() - start
+            self._compiled[key], seconds = xla.compile_timed(self._jitted, *args)
+            self.compile_seconds += seconds
         return self._compiled[key](*args)
 
 
