@@ -255,6 +255,50 @@ def test_resume_with_other_code_is_refused_unless_allowed_and_then_recorded(fini
     assert_same_results(run, finished_quick)  # the code is in fact the same
 
 
+def test_failed_resume_with_other_code_records_nothing(finished_quick, tmp_path, capsys):
+    """Allowed other code, but no checkpoint to resume from: refused, and config.json says
+    no resume happened."""
+    run = unfinished_copy(finished_quick, tmp_path)
+    record = json.loads((run / "config.json").read_text())
+    record["code"]["source_sha256"] = "0" * 64
+    (run / "config.json").write_text(json.dumps(record))
+    for step in checkpoint_steps(run):
+        tear(run / checkpoints.CHECKPOINTS / str(step))
+    before = tree_bytes(run)
+    assert main(SWEEP + ["--out", str(run), "--resume", "--allow-other-code"]) == 2
+    assert "no intact checkpoint" in one_line_error(capsys.readouterr().err)
+    assert tree_bytes(run) == before
+
+
+def test_resume_on_another_engine_is_refused(finished_quick, tmp_path, capsys):
+    """The run was made on the native engine: resuming it on MuJoCo C through Python (the
+    same state layout) would leave config.json naming the wrong engine, and on MJX the state
+    does not fit; both are refused before anything is read or written."""
+    run = unfinished_copy(finished_quick, tmp_path)
+    before = tree_bytes(run)
+    for engine in ("mujoco", "mjx"):
+        argv = ["sweep", "--config", "quick", "--quiet", "--engine", engine, "--out", str(run), "--resume"]
+        assert main(argv) == 2
+        assert "--engine native" in one_line_error(capsys.readouterr().err)
+    assert tree_bytes(run) == before
+
+
+def test_force_replaces_only_a_run_directory(tmp_path, capsys):
+    """A mistyped --out that holds a user's files, not a run: --force deletes nothing, and
+    without it the error does not suggest --force."""
+    folder = tmp_path / "results"
+    (folder / "thesis").mkdir(parents=True)
+    (folder / "thesis" / "chapter.tex").write_text("months of work")
+    (folder / "notes.txt").write_text("keep me")
+    before = tree_bytes(folder)
+    assert main(SWEEP + ["--out", str(folder), "--force"]) == 2
+    assert "not a run directory" in one_line_error(capsys.readouterr().err)
+    assert main(SWEEP + ["--out", str(folder)]) == 2
+    error = one_line_error(capsys.readouterr().err)
+    assert "not a run directory" in error and "--force" not in error
+    assert tree_bytes(folder) == before
+
+
 def test_finished_run_is_never_resumed_over(finished_quick, tmp_path, capsys):
     """``make run`` a second time: the finished run's Table 1 again, exit 0, no file changed;
     a finished run of another config is refused."""

@@ -30,7 +30,9 @@ def compiler_options() -> dict[str, str] | None:
 
 
 def jit(fun: Callable, **kwargs: Any) -> Callable:
-    """``jax.jit`` with this library's compiler options."""
+    """``jax.jit`` with this library's compiler options.  It asks JAX for its backend, which
+    starts XLA: call it when a function is built, not at import, where XLA would start before
+    the process has set its threads."""
     return jax.jit(fun, compiler_options=compiler_options(), **kwargs)
 
 

@@ -161,7 +161,8 @@ def restore_state(manager: ocp.CheckpointManager, template: Any,
         raise RunError("the checkpoint was written by another config")
     if leaves.keys() != expected.keys() or any(
             leaves[k].shape != v.shape or leaves[k].dtype != v.dtype for k, v in expected.items()):
-        raise RunError("the checkpoint does not match this version's state; rerun without --resume")
+        raise RunError("the checkpoint does not match the state this code builds (another version "
+                       "of mjxcpg, or another engine's state, wrote it)")
     template_leaves, treedef = jax.tree.flatten(template)
     state = jax.tree.unflatten(treedef, [jax.numpy.asarray(leaves.get(f"{i:04d}", x))
                                          for i, x in enumerate(template_leaves)])

@@ -56,10 +56,7 @@ def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot
     if Path(source).resolve().is_relative_to(Path(out).resolve()):
         raise runs.RunError(f"--out {out} is or holds the run learned from; choose another directory")
     with runs.locked(out):
-        if runs.run_files(out):
-            if not force:
-                raise runs.RunError(f"{out} exists; pass --force to replace it")
-            runs.remove_run_files(out)
+        runs.clear_for_new_run(out, force)
         return _learn_online_locked(source, learner, out, trials, robot, reward, engine, trial_seconds, progress,
                                     tensorboard)
 
@@ -77,14 +74,15 @@ def _learn_online_locked(source: Path, learner: int, out: Path, trials: int, rob
     state = train.RunState(physics=sim.engine.init(sim.qpos0, 1),
                            learners=jax.tree.map(lambda x: x[None], fresh))
 
+    origin = {"from": str(source), "learner": learner, "robot": robot, "reward": reward}
+    runs.write_record(out, spec, sim.engine.name, online=origin)
     start = time.perf_counter()
     state = runs.learn_to_end(out, sim, task, spec, state, None, progress, tensorboard)
     wall_s = time.perf_counter() - start
 
     result = train.learner_results(spec, state.learners)[0]
     walk_check = report.final_policy_gaits(sim, task, state.learners.weights)[0]
-    summary = {
-        "from": str(source), "learner": learner, "robot": robot, "reward": reward,
+    summary = origin | {
         "engine": sim.engine.name, "k_s": spec.k_s[0], "seed": spec.seeds[0],
         "trial_seconds": trial_seconds, "succeeded": result["succeeded"],
         "trials_to_success": result["trials_to_success"], "trials": result["trials"],

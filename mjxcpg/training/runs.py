@@ -114,8 +114,17 @@ def run_files(out: Path) -> list[Path]:
     return [p for p in out.iterdir() if p.name != LOCK_NAME] if out.is_dir() else []
 
 
-def remove_run_files(out: Path) -> None:
-    """Empty ``out`` for a new run (``--force``), keeping the lock its caller holds."""
+def clear_for_new_run(out: Path, force: bool, options: str = "pass --force to replace it") -> None:
+    """Empty ``out`` for a new run when it holds a run and ``force`` is set (keeping the lock
+    its caller holds); else, if it holds anything, refuse (``RunError``, naming ``options``).
+    A directory without config.json is never emptied: a mistyped ``--out`` (``runs``, ``.``)
+    must not delete what is not a run."""
+    if not run_files(out):
+        return
+    if not (out / "config.json").is_file():
+        raise RunError(f"{out} holds files but is not a run directory (no config.json); choose another --out")
+    if not force:
+        raise RunError(f"{out} exists; {options}")
     for path in run_files(out):
         shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
 
@@ -132,11 +141,17 @@ def run_record(spec: train.RunSpec, engine: str | None, **extra) -> dict:
     return {"spec": config.spec_to_dict(spec), "engine": engine, "code": provenance.code_identity(), **extra}
 
 
-def write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunState, **extra) -> None:
-    """``out`` (new, or empty) as a run directory that ``load_run`` reads: config.json
-    (``run_record``) and ``state`` as its one checkpoint."""
+def write_record(out: Path, spec: train.RunSpec, engine: str, **extra) -> None:
+    """``out/config.json`` (``run_record``): written before anything else of a run, so that
+    a directory holding a run's files always says what made them (``clear_for_new_run``)."""
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "config.json", json.dumps(run_record(spec, engine, **extra), indent=1))
+
+
+def write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunState, **extra) -> None:
+    """``out`` (new, or empty) as a run directory that ``load_run`` reads: config.json
+    (``write_record``) and ``state`` as its one checkpoint."""
+    write_record(out, spec, engine, **extra)
     write_checkpoint(out, state, spec)
 
 
@@ -147,7 +162,7 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
     config_path = out / "config.json"
     record = run_record(spec, engine)
     code = record["code"]
-    fresh = True
+    fresh, differences = True, []
     if run_files(out):
         if resume and config_path.is_file():
             saved, record = read_config(out)
@@ -159,18 +174,15 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
             if differences and not allow_other_code:
                 raise RunError(f"{out} was made by other code ({'; '.join(differences)}); "
                                "pass --allow-other-code to resume it with this code")
-            if differences:
-                record["resumed_with_other_code"] = record.get("resumed_with_other_code", []) + [
-                    {"code": code, "differences": differences}]
-                write_text_atomic(config_path, json.dumps(record, indent=1))
-            engine = engine or record["engine"]
+            if engine is not None and engine != record["engine"]:
+                raise RunError(f"{out} was run on the {record['engine']} engine; resume it with "
+                               f"--engine {record['engine']} or without --engine")
+            engine = record["engine"]
             fresh = False
-        elif force:
-            remove_run_files(out)
         elif resume:
             raise RunError(f"{out} is not a run directory (no config.json); nothing to resume")
         else:
-            raise RunError(f"{out} exists; pass --resume to continue it or --force to replace it")
+            clear_for_new_run(out, force, "pass --resume to continue it or --force to replace it")
     sim = spec.simulation(engine)
     task = train.make_task(sim, spec)
     state = train.init_run(sim, task, spec)
@@ -189,6 +201,11 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
             aside = set_aside(out, [d for d, _ in damaged])
             notice(f"{out}: {damage_text(step, damaged)}; the damaged ones are moved to {aside}")
             manager.reload()
+    if not fresh and differences:
+        # Recorded once the state is restored: a resume that fails leaves no trace.
+        record["resumed_with_other_code"] = record.get("resumed_with_other_code", []) + [
+            {"code": code, "differences": differences}]
+        write_text_atomic(config_path, json.dumps(record, indent=1))
     return sim, task, state, manager
 
 
@@ -218,11 +235,13 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     return sim, task, state, time.perf_counter() - start
 
 
-def share_start(group: processes.Group, engine: str | None, state: train.RunState | None) -> tuple:
-    """Process 0's start of a run (its engine and state, fresh or resumed) to every process;
-    an engine of None: the run is not to be run (it has finished)."""
+def share_start(group: processes.Group, engine: str | None,
+                state: train.RunState | None) -> tuple[str | None, list[np.ndarray]]:
+    """Process 0's start of a run (its engine and state, fresh or resumed) to every process:
+    the engine's name and the state's leaves as every process receives them (none when alone,
+    with no one to share with); an engine of None: the run is not to be run (it has finished)."""
     if group.count == 1:
-        return engine, state
+        return engine, []
     payload = None
     if group.writer:
         leaves = [] if state is None else [np.asarray(x) for x in jax.tree.leaves(jax.device_get(state))]
@@ -264,8 +283,7 @@ def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: trai
 
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
         nonlocal last_saved
-        book = jax.device_get(new_state.learners.book)
-        done = train.done_mask(task, new_state.learners)
+        book, done = jax.device_get(new_state.learners.book), counts["done"]
         due = done.all() or time.monotonic() - last_saved >= checkpoint_every_s
         if due:
             last_saved = time.monotonic()
@@ -322,7 +340,8 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     """The spec, simulation, task and final state of a finished or interrupted run.
 
     On ``robot="hardware"`` (see ``mjxcpg.physics.hardware``) the learners are the checkpoint's and the
-    physics is the hardware robot's, standing: a checkpoint holds nominal physics only.
+    physics is the hardware robot's, standing: a checkpoint holds nominal physics only.  Likewise
+    on an engine other than the recorded one, whose state has another layout.
     """
     out = Path(out)
     spec, record = read_config(out)
@@ -337,6 +356,6 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
         state, step, damaged = restore_state(manager, train.init_run(recorded, task, spec), spec)
     if damaged:
         notice(f"{out}: {damage_text(step, damaged)}")
-    if robot != "nominal":
+    if recorded is not sim:
         state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
     return LoadedRun(spec, sim, task, state)

@@ -171,22 +171,15 @@ def done_mask(task: Task, learners: LearnerState) -> np.ndarray:
     return np.asarray(is_done(task, learners._replace(book=jax.device_get(learners.book))))
 
 
-def progress_counts(task: Task, learners: LearnerState) -> dict:
-    book = jax.device_get(learners.book)
-    return {
-        "trials": int(np.sum(book.trial)),
-        "succeeded": int(np.sum(book.trials_to_success >= 0)),
-        "done": int(np.sum(done_mask(task, learners))),
-    }
-
-
 def compacted_size(active: int, batch: int) -> int:
-    """The rows a chunk runs with ``active`` of ``batch`` learners unfinished: the whole batch
-    until the unfinished ones fit in half of it, then the smallest power of two (at least 2)
-    that holds them.
+    """The rows a chunk runs with ``active`` of ``batch`` learners unfinished: the smallest
+    power of two (at least 2) that holds them, once it is at most half the batch; the whole
+    batch before.
 
-    A finished learner is frozen, so leaving it out changes nothing but the cost: the
-    controller and learner run for fewer robots.  Sizes come from a short ladder (each is
+    A finished learner's weights and recorded trials are frozen, so leaving it out changes no
+    result, only the cost: the controller and learner run for fewer robots.  (Its CPG, traces
+    and counters still advance while it pads a chunk, so a checkpoint's finished learners
+    differ in those with compaction.)  Sizes come from a short ladder (each is
     compiled once), and a batch never shrinks to one, which XLA compiles differently.
     """
     size = max(2, 1 << max(active - 1, 0).bit_length())
@@ -239,26 +232,30 @@ def _scatter_rows(tree: Any, rows: jax.Array, part: Any) -> Any:
 
 
 # Compiled ahead of time, as the chunk is: the loop leaves their compilation for a new batch
-# size out of its pace too.
+# size out of its pace too.  Plain ``jax.jit``: ``xla.jit`` at import would start XLA, and a
+# gather needs none of its options.
 _take_rows_on_device = AheadOfTime(jax.jit(_gather_rows))
 _put_rows_on_device = AheadOfTime(jax.jit(_scatter_rows))
 
 
 def compile_seconds(chunk: AheadOfTime) -> float:
-    """The tracing and compiling of ``chunk`` and of the row gathers so far (``AheadOfTime``)."""
+    """The tracing and compiling of ``chunk`` and of the one-device row gathers and writes so
+    far (``AheadOfTime``); on several devices ``take_rows`` indexes leaf by leaf, uncompiled
+    ahead, so there its compilation stays in the pace."""
     return chunk.compile_seconds + _take_rows_on_device.compile_seconds + _put_rows_on_device.compile_seconds
 
 
 def take_rows(tree: Any, rows: np.ndarray) -> Any:
     """Rows ``rows`` of every leaf: one jitted gather on one device (a leaf at a time costs
-    a dispatch each), on the host over several."""
+    a dispatch each); over several, an index of each leaf where it lives."""
     if jax.local_device_count() == 1:
         return _take_rows_on_device(tree, jnp.asarray(rows))
     return jax.tree.map(lambda x: x[rows], tree)
 
 
 def put_rows(tree: Any, rows: np.ndarray, part: Any) -> Any:
-    """``tree`` with rows ``rows`` of every leaf replaced by ``part``'s, as ``take_rows``."""
+    """``tree`` with rows ``rows`` of every leaf replaced by ``part``'s: one jitted scatter on
+    one device; over several, on the host (the whole tree comes back from the devices)."""
     if jax.local_device_count() == 1:
         return _put_rows_on_device(tree, jnp.asarray(rows), part)
     return jax.tree.map(functools.partial(_put_rows, rows), tree, part)
@@ -294,9 +291,9 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     With several processes (``group``), each steps the learners of its block
     (``Group.block``) and all see the whole state after each chunk, so that every process
     takes the same decisions (when to stop, which rows to compact) as one process would.
-    ``on_chunk(state, counts)`` after each chunk: ``progress_counts`` with the chunk's pace
-    (``robot_steps_per_s``) and this process's compilation for it (``compile_s``), which
-    the pace leaves out.  With several processes the pace still holds the time spent
+    ``on_chunk(state, counts)`` after each chunk: the learners done since (``done``, a mask),
+    the chunk's pace (``robot_steps_per_s``) and this process's compilation for it
+    (``compile_s``), which the pace leaves out.  With several processes the pace still holds the time spent
     waiting for the others, their compilation included."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = AheadOfTime(make_chunk(sim, task, steps))
@@ -317,9 +314,9 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
         state = jax.block_until_ready(state)
         compile_s = compile_seconds(chunk) - compiled_before
         stepping_s = time.perf_counter() - start - compile_s
-        counts = progress_counts(task, state.learners) | {
-            "robot_steps_per_s": np.sum(~done) * steps * sim.engine.substeps / stepping_s, "compile_s": compile_s}
+        counts = {"robot_steps_per_s": np.sum(~done) * steps * sim.engine.substeps / stepping_s,
+                  "compile_s": compile_s}
         done = done_mask(task, state.learners)
         if on_chunk is not None:
-            on_chunk(state, counts)
+            on_chunk(state, counts | {"done": done})
     return state
