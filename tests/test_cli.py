@@ -105,6 +105,17 @@ def test_non_boolean_switch_in_a_config_is_one_line_and_exit_2(tmp_path, capsys)
     assert err == "mjxcpg: error: learner.unit_slope: expected true or false, got 'false'"
 
 
+@pytest.mark.parametrize("text, kind", [("[1, 2]", "list"), ('"paper"', "str")])
+def test_json_config_that_is_not_a_table_is_one_line_and_exit_2(tmp_path, text, kind, capsys):
+    """A run's returns.json (a list) given as a config, for example."""
+    path = tmp_path / "returns.json"
+    path.write_text(text)
+    assert main(["sweep", "--config", str(path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"mjxcpg: error: {path}: a config is a table of keys, not a {kind}"
+    assert not (tmp_path / "run").exists()
+
+
 def test_learn_resumed_when_finished_keeps_its_record(tmp_path, capsys):
     """``learn --resume`` on a finished learner: exit 0 and no file changed."""
     out = tmp_path / "learn"

@@ -227,6 +227,8 @@ def load_spec(name_or_path: str, platform: str | None = None) -> RunSpec:
         data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f"{name_or_path}: not valid {suffix[1:].upper()}: {error}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{name_or_path}: a config is a table of keys, not a {type(data).__name__}")
     return spec_from_config(expand_learners(data | ({} if platform is None else {"platform": platform})))
 
 
