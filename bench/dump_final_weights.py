@@ -1,10 +1,10 @@
-"""Write a run's final weights and trials to success to an .npz that any version reads.
+"""Write a run's final weights and trials to success to an .npz that any version reads, for
+``bench/transfer_weights.py`` (which walks a few learners many times):
 
-Run it with the code that made the run (its checkpoint layout may be an older one's), then
-walk the weights with the current code (``bench/transfer_weights.py``):
+    NPROC=1 .venv/bin/python bench/dump_final_weights.py runs/paper_mjx_today /tmp/w.npz
 
-    git worktree add /tmp/b968 b968e4f
-    PYTHONPATH=/tmp/b968 NPROC=1 .venv/bin/python bench/dump_final_weights.py runs/paper_mjx /tmp/paper_mjx.npz
+A run whose checkpoint this version does not read (an older layout): run this script with
+the code that made the run, and walk the weights with this one.
 """
 
 import argparse

@@ -1,8 +1,8 @@
-"""``mjxcpg transfer`` for final weights saved by ``bench/dump_final_weights.py``: a run made
-by an earlier version, whose checkpoint this version does not read, walked on both engines
-by this version's code (the run's config gives the set-up).
+"""``mjxcpg transfer`` for final weights saved by ``bench/dump_final_weights.py``, walked on
+both engines by this version's code (the run's config gives the set-up), for some learners
+only and as many walks as asked:
 
-    NPROC=1 .venv/bin/python bench/transfer_weights.py runs/paper_mjx /tmp/paper_mjx.npz
+    NPROC=1 .venv/bin/python bench/transfer_weights.py runs/paper_mjx_today /tmp/w.npz --learners 1 --walks 64
 """
 
 import argparse
