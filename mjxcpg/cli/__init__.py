@@ -1,4 +1,4 @@
-"""The ``mjxcpg`` command line: walk, learn, sweep, eval, render, bench.
+"""The ``mjxcpg`` command line: walk, learn, sweep, controls, eval, transfer, render, bench.
 
 MuJoCo is imported only inside the commands (and the parser), so that ``render`` can choose
 its headless OpenGL back end (``MUJOCO_GL``) before MuJoCo reads it, at import."""

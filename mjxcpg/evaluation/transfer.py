@@ -29,7 +29,7 @@ import numpy as np
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.physics import hardware
-from mjxcpg.training import report, runs, train
+from mjxcpg.training import files, report, runs, train
 
 ENGINES = ("native", "mjx")
 RELATIVE_PERTURBATION = 1e-6  # of each mean weight
@@ -113,7 +113,7 @@ def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: 
     succeeded = np.asarray(state.learners.book.trials_to_success) >= 0
     result = compare_engines(spec, jax.device_get(state.learners.weights), succeeded, record["engine"],
                              seconds, walks)
-    (run_dir / "transfer.json").write_text(json.dumps(report.json_safe(result), indent=1))
+    files.write_text_atomic(run_dir / "transfer.json", json.dumps(report.json_safe(result), indent=1))
     return result
 
 
