@@ -4,6 +4,7 @@ notebooks (README, "Python API").  ``import mjxcpg`` then ``mjxcpg.sweep(...)``,
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -85,22 +86,33 @@ def finished_summary(out: Path, spec: RunSpec) -> dict:
 def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None, engine: str | None = None,
              robot: str = "nominal", params: EvalParams = EvalParams(),
              parts: Iterable[str] = EVALUATIONS, transfer_repeats: int = 20, out: str | Path | None = None,
-             progress: Callable[[str], None] | None = None) -> dict:
+             progress: Callable[[str], None] | None = None, force: bool = False) -> dict:
     """Evaluate the final policies of the run in ``run_dir`` as the paper did: velocity
     against k_s, the return map of step length, slopes, pushes (``parts``; ``transfer``, on
     the hardware robot only, walks each policy ``transfer_repeats`` times with other sensor
     noise).  Writes ``eval/*.json``, plots and ``report.md`` in ``out`` (default: the run
-    directory; on the hardware robot its ``hardware/`` subdirectory).
+    directory; on the hardware robot its ``hardware/`` subdirectory), holding ``out``'s lock
+    while it runs; an earlier evaluation there is replaced only with ``force``.
 
     Returns the report's summary and where the report is."""
     run_dir, parts = Path(run_dir), list(parts)
     unknown = set(parts) - set(EVALUATIONS)
     if unknown:
         raise ValueError(f"unknown evaluation(s) {', '.join(sorted(unknown))}; choose from {', '.join(EVALUATIONS)}")
-    context = registry.load_context(run_dir, learners, engine, robot, params, transfer_repeats)
-    result = registry.evaluate_run(context, parts, progress)
+    runs.read_config(run_dir)  # a missing or damaged run is refused before ``out`` is made
     # Each robot's evaluation has its own place, so that one never overwrites the other's.
     out = Path(out) if out else run_dir if robot == "nominal" else run_dir / robot
-    table1_text = run_report.table1(train.learner_results(context.spec, context.state.learners))
-    summary = evaluation_report.write_eval_report(run_dir, result, registry.EVALUATIONS, out, table1_text)
+    if out.exists() and not out.is_dir():
+        raise runs.RunError(f"--out {out} is a file, not a directory")
+    with runs.locked(out):
+        earlier = [p for p in (out / "eval", out / "report.md") if p.exists()]
+        if earlier and not force:
+            raise runs.RunError(f"{out} holds an earlier evaluation ({', '.join(p.name for p in earlier)}); "
+                                "pass --force to replace it, or choose another --out")
+        context = registry.load_context(run_dir, learners, engine, robot, params, transfer_repeats)
+        result = registry.evaluate_run(context, parts, progress)
+        table1_text = run_report.table1(train.learner_results(context.spec, context.state.learners))
+        if (out / "eval").is_dir():  # the earlier evaluation's plots, which this one may not redraw
+            shutil.rmtree(out / "eval")
+        summary = evaluation_report.write_eval_report(run_dir, result, registry.EVALUATIONS, out, table1_text)
     return {"report": str(out / "report.md"), "engine": result["engine"], "robot": robot, **summary}

@@ -177,6 +177,34 @@ def test_eval_errors_are_one_line(learned_run, tmp_path, case, capsys):
     assert not (run / "eval").exists()
 
 
+def test_eval_replaces_an_earlier_evaluation_only_with_force(learned_run, tmp_path, capsys):
+    """A second eval into the same OUT is refused, nothing touched; with --force it replaces
+    the report and the earlier plots, which it might not draw again."""
+    (tmp_path / "report.md").write_text("the earlier evaluation's report\n")
+    (tmp_path / "eval").mkdir()
+    (tmp_path / "eval" / "earlier_plot.png").write_bytes(b"earlier")
+    argv = ["eval", "--run", str(learned_run), "--engine", "native", "--out", str(tmp_path), "--quiet",
+            "--fixed-point-steps", "2", "--perturbations", "1", "--skip", "slopes", "pushes"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mjxcpg: error:") and "\n" not in err and "--force" in err
+    assert (tmp_path / "report.md").read_text() == "the earlier evaluation's report\n"
+    assert (tmp_path / "eval" / "earlier_plot.png").read_bytes() == b"earlier"
+    assert main(argv + ["--force"]) == 0
+    assert (tmp_path / "report.md").read_text() != "the earlier evaluation's report\n"
+    assert not (tmp_path / "eval" / "earlier_plot.png").exists()
+    assert (tmp_path / "eval" / "evaluation.json").is_file()
+
+
+def test_eval_out_that_is_a_file_is_one_line(learned_run, tmp_path, capsys):
+    out = tmp_path / "results.txt"
+    out.write_text("a user's file")
+    assert main(["eval", "--run", str(learned_run), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"mjxcpg: error: --out {out} is a file, not a directory"
+    assert out.read_text() == "a user's file"
+
+
 @pytest.mark.slow
 def test_paper_budgets_on_the_learned_policy(learned_run, tmp_path):
     """The paper's counts (100 unperturbed steps, 50 perturbations, 20 s per slope)."""

@@ -196,7 +196,8 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,
                                  api.EvalParams(**overrides),
                                  parts=[p for p in api.EVALUATIONS if p not in (args.skip or [])],
-                                 transfer_repeats=args.transfer_repeats, out=args.out, progress=progress)
+                                 transfer_repeats=args.transfer_repeats, out=args.out, progress=progress,
+                                 force=args.force)
 
 
 def cmd_bench(args: argparse.Namespace) -> dict | None:

@@ -176,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
                             help="with --robot hardware: walks per policy, each with other sensor noise")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
                                            "with --robot hardware, its hardware/ subdirectory)")
+    evaluation.add_argument("--force", action="store_true", help="replace an earlier evaluation in OUT")
     evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
     evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     evaluation.set_defaults(handler=cmd_eval)
