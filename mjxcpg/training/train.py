@@ -291,10 +291,10 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     With several processes (``group``), each steps the learners of its block
     (``Group.block``) and all see the whole state after each chunk, so that every process
     takes the same decisions (when to stop, which rows to compact) as one process would.
-    ``on_chunk(state, counts)`` after each chunk: the learners done since (``done``, a mask),
-    the chunk's pace (``robot_steps_per_s``) and this process's compilation for it
-    (``compile_s``), which the pace leaves out.  With several processes the pace still holds the time spent
-    waiting for the others, their compilation included."""
+    ``on_chunk(state, counts)`` after each chunk: which learners are done after it (``done``,
+    a mask), the chunk's pace (``robot_steps_per_s``) and this process's compilation for it
+    (``compile_s``), which the pace leaves out.  With several processes the pace still holds
+    the time spent waiting for the others, their compilation included."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = AheadOfTime(make_chunk(sim, task, steps))
     initial = sim.engine.init(sim.qpos0, spec.batch)
