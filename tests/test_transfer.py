@@ -48,6 +48,17 @@ def test_compare_engines_leaves_out_policies_that_fall_on_either_engine(monkeypa
     assert result["max_abs_difference"] == pytest.approx(0.2) and result["within_10_percent"] == 1
 
 
+def test_transfer_replaces_an_earlier_result_only_with_force(tmp_path, capsys):
+    """Refused before any walk: the earlier transfer.json stays as it was."""
+    run = make_learned_run(tmp_path / "run")
+    (run / "summary.json").write_text("{}")
+    (run / "transfer.json").write_text('{"earlier": true}')
+    assert main(["transfer", "--run", str(run), "--walks", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mjxcpg: error:") and "\n" not in err and "--force" in err
+    assert (run / "transfer.json").read_text() == '{"earlier": true}'
+
+
 @pytest.mark.slow
 def test_transfer_of_the_stored_policy_agrees_across_engines(tmp_path, capsys):
     """The stored learned policy walked 3 times on each engine, as the CLI does: no fall, and

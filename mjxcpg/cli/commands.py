@@ -178,7 +178,7 @@ def cmd_transfer(args: argparse.Namespace) -> dict:
 
     if not (Path(args.run) / "summary.json").is_file():
         raise UserError(f"{args.run} holds no finished run (no summary.json); run the sweep first")
-    result = transfer.walk_on_engines(Path(args.run), args.seconds, args.walks)
+    result = transfer.walk_on_engines(Path(args.run), args.seconds, args.walks, args.force)
     for r in result["learners"]:
         print(transfer.row_line(r, args.walks))
     return {k: v for k, v in result.items() if k != "learners"} | {"out": str(Path(args.run) / "transfer.json")}

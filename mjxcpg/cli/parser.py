@@ -140,6 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--seconds", type=seconds, default=20.0)
     tr.add_argument("--walks", type=count, default=8,
                     help="walks per policy: as learned, then with its weights moved by 1e-6 of themselves")
+    tr.add_argument("--force", action="store_true", help="replace the run's earlier transfer.json")
     tr.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     tr.set_defaults(handler=cmd_transfer)
 

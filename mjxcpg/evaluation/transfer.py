@@ -105,15 +105,19 @@ def row_line(row: dict, walks: int) -> str:
             + (f"  falls on MJX {row['falls_mjx']}" if row["falls_mjx"] else ""))
 
 
-def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: int = 8) -> dict:
+def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: int = 8,
+                    force: bool = False) -> dict:
     """Walk the run's final policies on both engines (``compare_engines``); write and return
-    ``transfer.json``."""
+    ``transfer.json``, holding the run's lock; an earlier one is replaced only with ``force``."""
     spec, record = runs.read_config(run_dir)
-    _, _, _, state = runs.load_run(run_dir)
-    succeeded = np.asarray(state.learners.book.trials_to_success) >= 0
-    result = compare_engines(spec, jax.device_get(state.learners.weights), succeeded, record["engine"],
-                             seconds, walks)
-    files.write_text_atomic(run_dir / "transfer.json", json.dumps(report.json_safe(result), indent=1))
+    with runs.locked(run_dir):
+        if (run_dir / "transfer.json").exists() and not force:
+            raise runs.RunError(f"{run_dir} holds an earlier transfer.json; pass --force to replace it")
+        _, _, _, state = runs.load_run(run_dir)
+        succeeded = np.asarray(state.learners.book.trials_to_success) >= 0
+        result = compare_engines(spec, jax.device_get(state.learners.weights), succeeded, record["engine"],
+                                 seconds, walks)
+        files.write_text_atomic(run_dir / "transfer.json", json.dumps(report.json_safe(result), indent=1))
     return result
 
 
