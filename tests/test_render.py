@@ -83,6 +83,20 @@ def test_missing_opengl_is_one_line_and_nonzero(tmp_path):
     assert err.startswith("mjxcpg: error: cannot render") and "OpenGL" in err and "\n" not in err
 
 
+def test_earlier_render_is_replaced_only_with_force(tmp_path):
+    """Refused before OpenGL is checked or anything walks (GLFW with no display would fail
+    next): the earlier filmstrip stays as it was."""
+    earlier = tmp_path / "run" / "render" / "gait_learner00_nominal.png"
+    earlier.parent.mkdir(parents=True)
+    earlier.write_bytes(b"an earlier filmstrip")
+    done = subprocess.run([sys.executable, "-m", "mjxcpg", "render", "--run", str(tmp_path / "run")],
+                          capture_output=True, text=True, env=_env(MUJOCO_GL="glfw"), timeout=300)
+    assert done.returncode != 0
+    err = done.stderr.strip()
+    assert err.startswith("mjxcpg: error:") and "earlier render" in err and "--force" in err and "\n" not in err
+    assert earlier.read_bytes() == b"an earlier filmstrip"
+
+
 def test_only_render_chooses_the_gl_back_end():
     script = ("import os, sys; from mjxcpg import cli; cli._choose_headless_gl(sys.argv[1:]); "
               "print(os.environ.get('MUJOCO_GL'), 'mujoco' in sys.modules)")

@@ -139,7 +139,7 @@ def cmd_render(args: argparse.Namespace) -> dict:
     out = Path(args.out or Path(args.run) / "render")
     try:
         return render.render_gait(Path(args.run), args.learner, out, seconds=args.seconds,
-                                  engine=args.engine, robot=args.robot, gif=args.gif)
+                                  engine=args.engine, robot=args.robot, gif=args.gif, force=args.force)
     except render.RenderError as error:
         raise UserError(str(error)) from None
 

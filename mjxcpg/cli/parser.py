@@ -152,6 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     rend.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     rend.add_argument("--out", help="output directory (default: RUN/render)")
     rend.add_argument("--gif", action="store_true", help="also write the video's frames as an animated GIF")
+    rend.add_argument("--force", action="store_true", help="replace an earlier render of this learner and robot")
     rend.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     rend.set_defaults(handler=cmd_render)
 

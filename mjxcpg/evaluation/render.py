@@ -196,22 +196,27 @@ def write_mp4(frames: np.ndarray, path: Path, frame_seconds: float) -> None:
 
 def render_gait(run_dir: Path, learner: int, out: Path, seconds: float = 10.0, strip_start: float = 2.0,
                 strip_seconds: float = 2.0, snapshot_s: float = 0.1, video_frame_s: float = 0.04,
-                engine: str | None = None, robot: str = "nominal", view: View = View(), gif: bool = False) -> dict:
+                engine: str | None = None, robot: str = "nominal", view: View = View(), gif: bool = False,
+                force: bool = False) -> dict:
     """Walk the policy for ``seconds``; write ``out``/gait_learnerK_ROBOT.png (snapshots every
     ``snapshot_s`` from ``strip_start`` for ``strip_seconds``) and .mp4 (the whole walk, a
-    frame every ``video_frame_s``), and with ``gif`` the same frames as a .gif.
+    frame every ``video_frame_s``), and with ``gif`` the same frames as a .gif; earlier files
+    of those names are replaced only with ``force``.
 
-    Checks that OpenGL works before the walk is simulated."""
+    Checks that OpenGL works and that ``out`` may be written before the walk is simulated."""
     if strip_start + strip_seconds > seconds:
         raise ValueError(f"the filmstrip ({strip_start:g} s + {strip_seconds:g} s) must lie within "
                          f"the walk's {seconds:g} s")
+    stem = out / f"gait_learner{learner:02d}_{robot}"
+    earlier = [stem.with_suffix(s).name for s in (".png", ".mp4", ".gif") if stem.with_suffix(s).exists()]
+    if earlier and not force:
+        raise RenderError(f"{out} holds an earlier render ({', '.join(earlier)}); pass --force to replace it")
     check_opengl()
     gait = record_gait(run_dir, learner, seconds, engine, robot)
     steps = len(gait.qpos)
     strip_steps = snapshot_steps(strip_start, strip_start + strip_seconds, snapshot_s, gait.dt, steps)
     video_steps = snapshot_steps(0.0, seconds, video_frame_s, gait.dt, steps)
     out.mkdir(parents=True, exist_ok=True)
-    stem = out / f"gait_learner{learner:02d}_{robot}"
     view = view.for_robot(gait.robot)
     filmstrip(render_frames(gait.model, gait.qpos[strip_steps], view),
               strip_steps * gait.dt).save(stem.with_suffix(".png"))
