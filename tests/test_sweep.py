@@ -173,6 +173,24 @@ def test_controls_run_beside_table1(finished_quick, tmp_path, walks_mujoco, mujo
             "a 20 s walk from standing (an earlier version's summary)") in (run / "table1.md").read_text()
 
 
+def test_controls_refuse_an_earlier_control_before_running_any(finished_quick, tmp_path, capsys):
+    """An earlier ``--only zero_feedback``, then all four without --resume or --force: refused
+    at once (the first three would have run for nothing), nothing written."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_quick, run)
+    earlier = run / "controls" / "zero_feedback"
+    earlier.mkdir(parents=True)
+    (earlier / "config.json").write_text("{}")
+    table = (run / "table1.md").read_text()
+    assert main(["controls", "--run", str(run), "--trials", "4", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mjxcpg: error:") and "zero_feedback exists" in err and "\n" not in err
+    assert sorted(p.name for p in (run / "controls").iterdir()) == ["zero_feedback"]
+    assert (run / "table1.md").read_text() == table
+
+
 def test_controls_need_a_finished_run(tmp_path, capsys):
     assert main(["controls", "--run", str(tmp_path / "nothing")]) == 2
     assert "no finished run" in capsys.readouterr().err
