@@ -105,10 +105,7 @@ def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None
     if out.exists() and not out.is_dir():
         raise runs.RunError(f"--out {out} is a file, not a directory")
     with runs.locked(out):
-        earlier = [p for p in (out / "eval", out / "report.md") if p.exists()]
-        if earlier and not force:
-            raise runs.RunError(f"{out} holds an earlier evaluation ({', '.join(p.name for p in earlier)}); "
-                                "pass --force to replace it, or choose another --out")
+        runs.refuse_earlier_output(out, ("eval", "report.md"), force, "evaluation")
         context = registry.load_context(run_dir, learners, engine, robot, params, transfer_repeats)
         result = registry.evaluate_run(context, parts, progress)
         table1_text = run_report.table1(train.learner_results(context.spec, context.state.learners))

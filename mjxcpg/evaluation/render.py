@@ -207,10 +207,11 @@ def render_gait(run_dir: Path, learner: int, out: Path, seconds: float = 10.0, s
     if strip_start + strip_seconds > seconds:
         raise ValueError(f"the filmstrip ({strip_start:g} s + {strip_seconds:g} s) must lie within "
                          f"the walk's {seconds:g} s")
+    from mjxcpg.training import runs
+
     stem = out / f"gait_learner{learner:02d}_{robot}"
-    earlier = [stem.with_suffix(s).name for s in (".png", ".mp4", ".gif") if stem.with_suffix(s).exists()]
-    if earlier and not force:
-        raise RenderError(f"{out} holds an earlier render ({', '.join(earlier)}); pass --force to replace it")
+    runs.refuse_earlier_output(out, tuple(stem.with_suffix(s).name for s in (".png", ".mp4", ".gif")), force,
+                               "render")
     check_opengl()
     gait = record_gait(run_dir, learner, seconds, engine, robot)
     steps = len(gait.qpos)

@@ -111,8 +111,7 @@ def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: 
     ``transfer.json``, holding the run's lock; an earlier one is replaced only with ``force``."""
     spec, record = runs.read_config(run_dir)
     with runs.locked(run_dir):
-        if (run_dir / "transfer.json").exists() and not force:
-            raise runs.RunError(f"{run_dir} holds an earlier transfer.json; pass --force to replace it")
+        runs.refuse_earlier_output(run_dir, ("transfer.json",), force, "transfer")
         _, _, _, state = runs.load_run(run_dir)
         succeeded = np.asarray(state.learners.book.trials_to_success) >= 0
         result = compare_engines(spec, jax.device_get(state.learners.weights), succeeded, record["engine"],

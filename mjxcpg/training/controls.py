@@ -61,12 +61,8 @@ def run_controls(run_dir: Path, names=tuple(CONTROLS), trials: int = DEFAULT_TRI
     # The run's lock covers its controls, which write into its table1.md.
     with runs.locked(run_dir):
         for name in specs:  # refused before any control runs, not after the first ones
-            out = run_dir / "controls" / name
-            if runs.run_files(out) and not (out / "config.json").is_file():
-                raise runs.RunError(f"{out} holds files but is not a run directory (no config.json); move them away")
-            if runs.run_files(out) and not (resume or force):
-                raise runs.RunError(f"{out} exists; pass --resume to continue the controls or --force to run "
-                                    "them again")
+            runs.check_replaceable(run_dir / "controls" / name, resume or force,
+                                   "pass --resume to continue the controls or --force to run them again")
         walls = json.loads(walls_path.read_text()) if walls_path.is_file() else {}
         for name, cspec in specs.items():
             out = run_dir / "controls" / name

@@ -114,19 +114,34 @@ def run_files(out: Path) -> list[Path]:
     return [p for p in out.iterdir() if p.name != LOCK_NAME] if out.is_dir() else []
 
 
+def check_replaceable(out: Path, allowed: bool, options: str = "pass --force to replace it") -> bool:
+    """Whether ``out`` holds anything; refused (``RunError``, naming ``options``) when it holds
+    a run and replacing or continuing it is not ``allowed``, and always when it holds files
+    but no run (no config.json): a mistyped ``--out`` (``runs``, ``.``) must not lose what is
+    not a run."""
+    if not run_files(out):
+        return False
+    if not (out / "config.json").is_file():
+        raise RunError(f"{out} holds files but is not a run directory (no config.json); nothing there is replaced")
+    if not allowed:
+        raise RunError(f"{out} exists; {options}")
+    return True
+
+
 def clear_for_new_run(out: Path, force: bool, options: str = "pass --force to replace it") -> None:
     """Empty ``out`` for a new run when it holds a run and ``force`` is set (keeping the lock
-    its caller holds); else, if it holds anything, refuse (``RunError``, naming ``options``).
-    A directory without config.json is never emptied: a mistyped ``--out`` (``runs``, ``.``)
-    must not delete what is not a run."""
-    if not run_files(out):
-        return
-    if not (out / "config.json").is_file():
-        raise RunError(f"{out} holds files but is not a run directory (no config.json); choose another --out")
-    if not force:
-        raise RunError(f"{out} exists; {options}")
-    for path in run_files(out):
-        shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+    its caller holds); else refuse as ``check_replaceable`` does."""
+    if check_replaceable(out, force, options):
+        for path in run_files(out):
+            shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+
+
+def refuse_earlier_output(out: Path, names: tuple[str, ...], force: bool, what: str) -> None:
+    """Refuse (``RunError``) to write over the files or folders ``names`` in ``out`` that an
+    earlier ``what`` (an evaluation, a render) left there, unless ``force``."""
+    earlier = [name for name in names if (out / name).exists()]
+    if earlier and not force:
+        raise RunError(f"{out} holds an earlier {what} ({', '.join(earlier)}); pass --force to replace it")
 
 
 def is_finished(out: Path) -> bool:
