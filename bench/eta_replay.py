@@ -3,8 +3,9 @@
 At 10%, 50% and 90% of the run's wall time (as ``bench/eta_accuracy.py``), each learner's
 trials and falls up to then are read back from its TensorBoard events, and
 ``progress.sampled_total_trials`` draws every learner's total (``progress.ETA_DRAWS`` draws):
-from its finished peers or Lindy's law, bounded by the streak its fall rate over the last 50
-trials predicts (the progress line's), or over the last 20, or not bounded.  Printed: the
+from its finished peers or Lindy's law, bounded by the streak its fall rates over its history
+predict (``progress.history_fall_rate``, the progress line's), or its fall rate over the last
+50 trials, or over the last 20, or not bounded.  Printed: the
 trials left of the learner that in fact had the most (the run's critical path), and the mean
 over the draws of the most trials any learner has left, which is what the batch waits for.
 
@@ -32,9 +33,9 @@ def replay(run: Path) -> None:
     total = np.array([len(e) for e in events])
     walls = sorted({wall for e in events for wall, _ in e})
     print(f"{run}: trials left, as they were and as drawn (mean over {progress.ETA_DRAWS} draws)\n"
-          "| at | learners left | most left | drawn: most left, bounded by last 50 | last 20 | not bounded "
-          "| learner with most left | its trials then | its trials left | drawn, last 50 |\n"
-          "|---|---|---|---|---|---|---|---|---|---|")
+          "| at | learners left | most left | drawn: most left, bounded by history | last 50 | last 20 | not bounded "
+          "| learner with most left | its trials then | its trials left | drawn, history | drawn, last 50 |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
     for fraction in FRACTIONS:
         then = walls[0] + fraction * (walls[-1] - walls[0])
         trials = np.array([sum(wall <= then for wall, _ in e) for e in events])
@@ -49,14 +50,16 @@ def replay(run: Path) -> None:
         done = trials >= total
         critical = int(np.argmax(total - trials))
         left = {}
-        for window in (50, 20, None):
-            rate = progress.recent_fall_rate(falls, trials, window) if window else None
-            left[window] = progress.sampled_total_trials(trial, k_s, trials, streak, to_success, done,
-                                                         progress.ETA_DRAWS, np.random.default_rng(0), rate) - trials
+        bounds = {"history": progress.history_fall_rate(falls, trials, trial.success_streak),
+                  50: progress.recent_fall_rate(falls, trials, 50), 20: progress.recent_fall_rate(falls, trials, 20),
+                  None: None}
+        for bound, rate in bounds.items():
+            left[bound] = progress.sampled_total_trials(trial, k_s, trials, streak, to_success, done,
+                                                        progress.ETA_DRAWS, np.random.default_rng(0), rate) - trials
         print(f"| {fraction:.0%} | {int(np.sum(~done))} | {np.max(total - trials)} | "
-              + " | ".join(f"{left[w].max(axis=1).mean():.0f}" for w in (50, 20, None))
+              + " | ".join(f"{left[w].max(axis=1).mean():.0f}" for w in bounds)
               + f" | {critical} | {trials[critical]} | {total[critical] - trials[critical]} "
-              f"| {left[50][:, critical].mean():.0f} |")
+              f"| {left['history'][:, critical].mean():.0f} | {left[50][:, critical].mean():.0f} |")
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training import train
 from mjxcpg.training.events import RunEvents, read_scalars
 from mjxcpg.training.progress import (RunProgress, compile_seconds_left, cost_model, lindy_mean, pareto_draws,
-                                      recent_fall_rate, remaining_seconds_simulated, sampled_total_trials,
+                                      history_fall_rate, recent_fall_rate, remaining_seconds_simulated, sampled_total_trials,
                                       trials_to_streak, wall_seconds_left)
 from mjxcpg.training.train import AheadOfTime
 
@@ -187,6 +187,24 @@ def test_recent_fall_rate_counts_the_last_trials_with_laplaces_rule():
     falls[1, :10] = True                     # falls only before its last 50 trials
     rates = recent_fall_rate(falls, np.array([4, 60]))
     assert rates.tolist() == pytest.approx([(2 + 1) / (4 + 2), 1 / 52])
+
+
+def test_history_fall_rate_waits_as_the_windows_complete_streaks():
+    falls = np.zeros((4, 200), bool)
+    falls[0, :100:5] = True         # 10 falls in each of its 2 windows of 50
+    falls[1, 50:100] = True         # its newest window falls every time, the one before never
+    falls[2, :10] = True            # 60 trials: the newest 50 without a fall, the 10 before all falls
+    rates = history_fall_rate(falls, np.array([100, 100, 60, 0]), 20)
+    # every window at Laplace's 11/52: that rate
+    assert rates[0] == pytest.approx(11 / 52)
+    # a window at 1/52 completes a streak every T = ((51/52)^-20 - 1) / (1/52) = 24.6 trials,
+    # the other at 51/52 one in about 52^20 (nothing); over both windows, 100 trials, one
+    # completion in 2T: the wait at the rate found is 2T
+    t_clean = ((51 / 52) ** -20 - 1) / (1 / 52)
+    assert trials_to_streak(rates[1], 0, 20) == pytest.approx(2 * t_clean, rel=1e-9)
+    # windows back from the newest: 50 trials at 1/52 and 10 at 11/12 (nothing), so 60 / (50 / T)
+    assert trials_to_streak(rates[2], 0, 20) == pytest.approx(60 / 50 * t_clean, rel=1e-9)
+    assert rates[3] == 1.0          # no trial yet: no bound
 
 
 def test_a_learner_that_rarely_falls_is_expected_to_finish_sooner_than_lindys_law_says():
