@@ -134,6 +134,16 @@ def test_the_package_names_are_the_apis():
     assert set(mjxcpg.__all__) - {"__version__"} == set(api.__all__)
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["walk", "--checkpoint", "/nonexistent/run", "--controller", "stepping"], "give one of them"),
+    (["eval", "--run", "/nonexistent/run", "--transfer-repeats", "3"], "applies to --robot hardware only"),
+])
+def test_a_flag_that_does_not_apply_is_refused_not_ignored(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err
+
+
 def test_learn_on_the_child_records_its_platform_and_walk_refuses_another(tmp_path, capsys):
     """``learn --platform child`` learns with the child's gait constants (its leg is twice
     QRIO's: Z_0 = 2 x 0.215 m, h' = 2 x 0.272 m); walking its checkpoint as QRIO is an error."""

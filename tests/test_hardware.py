@@ -237,6 +237,7 @@ def test_learner_reads_the_estimator_only_when_asked():
     (["learn", "--robot", "hardware"], "need --from"),
     (["learn", "--from", "/nonexistent/run", "--robot", "hardware"], "no run directory"),
     (["learn", "--from", "/nonexistent/run", "--k-s", "3"], "come from the checkpoint"),
+    (["learn", "--from", "/nonexistent/run", "--platform", "child"], "come from the checkpoint"),
     (["learn", "--from", "/nonexistent/run", "--checkpoint-every", "0"], "--checkpoint-every does not apply"),
 ])
 def test_online_learning_bad_input_is_one_line(argv, message, capsys, tmp_path):
@@ -273,6 +274,15 @@ def test_transfer_reports_both_robots(learned_run):
     assert result["walk_hardware_any"] == int(row["walks_hardware"] > 0)
     with pytest.raises(runs.RunError, match="out of range"):
         transfer.walk_policies(learned_run, learners=[3])
+
+
+@pytest.mark.slow
+def test_hardware_walks_draw_their_sensor_noise_from_the_seed_given(learned_run):
+    default = transfer.walk_policies(learned_run, seconds=3.0)
+    assert transfer.walk_policies(learned_run, seconds=3.0, noise_seed=hardware.HARDWARE.noise_seed) == default
+    other = transfer.walk_policies(learned_run, seconds=3.0, noise_seed=7)
+    assert other[0]["mean_vx"] != default[0]["mean_vx"]   # other noise, another walk
+    assert transfer.hardware_transfer(learned_run, seconds=1.0, noise_seed=7)["mismatch"]["noise_seed"] == 7
 
 
 @pytest.mark.slow

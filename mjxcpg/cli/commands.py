@@ -29,6 +29,8 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         from mjxcpg.learning.learner import actor_feedback
         from mjxcpg.training.runs import check_learners, load_run
 
+        if args.controller is not None:
+            raise UserError("--controller walks a hand-designed controller, --checkpoint a learned one: give one of them")
         spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
         if args.platform not in (None, spec.platform):
             raise UserError(f"{args.checkpoint} was learned on {spec.platform}, not {args.platform}")
@@ -39,12 +41,12 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         controller = {"policy": "learned", "zero": "stepping", "hand": "hand"}[task.trial.actor]
     else:
         sim = make_simulation(args.engine, args.slope, platform=args.platform or DEFAULT_PLATFORM)
-        if args.controller == "in-place":
+        controller = args.controller or "hand"
+        if controller == "in-place":
             sim = sim.rebuild(params=dataclasses.replace(sim.params, amp_x=0.0))
-        gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[args.controller]
+        gain = {"hand": sim.params.hand_gain, "stepping": 0.0, "in-place": 0.0}[controller]
         feedback = roll_rate_feedback
         fb_params = jnp.array([gain])
-        controller = args.controller
     trace = walk.walk_from_standing(sim, feedback, fb_params, args.seconds)
     summary = walk.summarise(trace, sim.control_dt)[0].as_dict()
     summary.update(engine=sim.engine.name, slope_deg=args.slope, controller=controller)
@@ -73,6 +75,7 @@ def _learn_or_sweep(spec, args, out: Path) -> dict | None:
 
 def cmd_learn(args: argparse.Namespace) -> dict | None:
     args.group = _join(args)
+    from mjxcpg.robots import DEFAULT_PLATFORM
     from mjxcpg.training.config import validate
     from mjxcpg.training.files import write_text_atomic
     from mjxcpg.training.runs import locked
@@ -86,7 +89,7 @@ def cmd_learn(args: argparse.Namespace) -> dict | None:
         raise UserError("--robot and --reward need --from: learning from scratch runs on the nominal robot")
     args.k_s = 10.0 if args.k_s is None else args.k_s
     args.seed = 0 if args.seed is None else args.seed
-    spec = RunSpec.for_platform(args.platform, k_s=(args.k_s,), seeds=(args.seed,))
+    spec = RunSpec.for_platform(args.platform or DEFAULT_PLATFORM, k_s=(args.k_s,), seeds=(args.seed,))
     spec = validate(dataclasses.replace(spec, trial=dataclasses.replace(
         spec.trial, max_trials=1000 if args.trials is None else args.trials)))
     out = Path(args.out or f"runs/learn_ks{args.k_s:g}_seed{args.seed}")
@@ -119,8 +122,8 @@ def _learn_online(args: argparse.Namespace) -> dict:
     from mjxcpg.training import online
     from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
-    if args.k_s is not None or args.seed is not None:
-        raise UserError("--k-s and --seed come from the checkpoint with --from")
+    if args.k_s is not None or args.seed is not None or args.platform is not None:
+        raise UserError("--k-s, --seed and --platform come from the checkpoint with --from")
     if args.resume or args.allow_other_code:
         raise UserError("--resume and --allow-other-code do not apply to --from; rerun with --force")
     if args.checkpoint_every != CHECKPOINT_EVERY_S:
@@ -192,12 +195,15 @@ def cmd_eval(args: argparse.Namespace) -> dict:
 
     fields = ["seed", "hand_seconds"] + [o.field for e in EVALUATIONS for o in e.options]
     overrides = {name: getattr(args, name) for name in fields if getattr(args, name) is not None}
+    if args.transfer_repeats is not None and args.robot != "hardware":
+        raise UserError("--transfer-repeats applies to --robot hardware only")
+    repeats = {} if args.transfer_repeats is None else {"transfer_repeats": args.transfer_repeats}
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
     return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,
                                  api.EvalParams(**overrides),
                                  parts=[p for p in api.EVALUATIONS if p not in (args.skip or [])],
-                                 transfer_repeats=args.transfer_repeats, out=args.out, progress=progress,
-                                 force=args.force)
+                                 out=args.out, progress=progress,
+                                 force=args.force, **repeats)
 
 
 def cmd_bench(args: argparse.Namespace) -> dict | None:

@@ -33,7 +33,7 @@ def _number(rule: checks.Range) -> Callable[[str], int | float]:
 
 def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.control.sim import ROBOTS
-    from mjxcpg.robots import DEFAULT_PLATFORM, PLATFORMS
+    from mjxcpg.robots import PLATFORMS
     from mjxcpg.evaluation.protocol import EvalParams
     from mjxcpg.evaluation.registry import EVALUATIONS
     from mjxcpg.physics.engines import ENGINES
@@ -54,8 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     walk = sub.add_parser("walk", help="walk with a controller and report the gait")
-    walk.add_argument("--controller", choices=("hand", "stepping", "in-place"), default="hand",
-                      help="hand: hand-designed a_5; stepping: a_5 = 0; in-place: a_5 = 0 and A_x = 0")
+    walk.add_argument("--controller", choices=("hand", "stepping", "in-place"), default=None,
+                      help="hand (default): hand-designed a_5; stepping: a_5 = 0; in-place: a_5 = 0 and A_x = 0; "
+                           "not with --checkpoint, which walks the run's own feedback")
     walk.add_argument("--checkpoint", help="walk with the learned policy saved in this run directory")
     walk.add_argument("--learner", type=index, default=0, help="learner index within a sweep checkpoint")
     walk.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
@@ -107,8 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,
                        help="with --from: reward from the robot's sensors (default on hardware) "
                             "or the simulator's state (default on nominal)")
-    learn.add_argument("--platform", choices=tuple(PLATFORMS), default=DEFAULT_PLATFORM,
-                       help="the robot that learns from scratch (default qrio)")
+    learn.add_argument("--platform", choices=tuple(PLATFORMS), default=None,
+                       help="the robot that learns from scratch (default qrio; with --from, the run's)")
     run_options(learn)
     learn.set_defaults(handler=cmd_learn)
 
@@ -162,7 +163,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--learner", type=index, nargs="+", help="learner indices (default: all)")
     evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
-    evaluation.add_argument("--seed", type=_number(checks.SEED), default=None, help="evaluation seed (default 0)")
+    evaluation.add_argument("--seed", type=_number(checks.SEED), default=None,
+                            help="seed of the perturbations and, with --robot hardware, of the sensor noise (default 0)")
     evaluation.add_argument("--hand-seconds", type=_number(checks.NON_NEGATIVE), default=None,
                             help="hand-designed feedback first for this long, as at a learning trial's start "
                                  "(default 0: each policy from standing)")
@@ -174,8 +176,9 @@ def build_parser() -> argparse.ArgumentParser:
     only_on = "; ".join(f"{e.name}: --robot {' or '.join(e.robots)} only" for e in EVALUATIONS if e.robots)
     evaluation.add_argument("--skip", nargs="+", choices=tuple(e.name for e in EVALUATIONS),
                             help=f"evaluations to leave out ({only_on})")
-    evaluation.add_argument("--transfer-repeats", type=count, default=20,
-                            help="with --robot hardware: walks per policy, each with other sensor noise")
+    evaluation.add_argument("--transfer-repeats", type=count, default=None,
+                            help="with --robot hardware only: walks per policy, each with other sensor noise "
+                                 "(default 20)")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
                                            "with --robot hardware, its hardware/ subdirectory)")
     evaluation.add_argument("--force", action="store_true", help="replace an earlier evaluation in OUT")

@@ -23,8 +23,9 @@ What is measured (choices and reasons in ``docs/evaluation.md``):
   every learner and direction in one batch per round).
 
 Everything random (perturbation times and sizes) is drawn from ``EvalParams.seed`` and the
-learner's index in its run, so an evaluation is deterministic and a learner's figures do not
-depend on which other learners are evaluated with it.
+learner's index in its run, so an evaluation is deterministic and a learner's draws do not
+depend on which other learners are evaluated with it (its figures can, by rounding, through
+the batch's size: docs/evaluation.md).
 """
 
 from __future__ import annotations

@@ -105,7 +105,7 @@ EVALUATIONS: tuple[Evaluation, ...] = (
                options=(Option("push_rounds", _COUNT, "bisection rounds per push direction"),)),
     Evaluation("transfer", "transfer: walks per policy on the hardware robot",
                lambda c: transfer.hardware_transfer(c.run_dir, engine=c.engine, learners=c.learners,
-                                                    repeats=c.transfer_repeats),
+                                                    repeats=c.transfer_repeats, noise_seed=c.params.seed),
                report.summarise_transfer, report.transfer_section, per_learner=False, robots=("hardware",)),
 )
 

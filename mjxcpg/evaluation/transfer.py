@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxcpg import robots
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.physics import hardware
@@ -122,10 +123,11 @@ def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: 
 
 def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float = 20.0,
                   engine: str | None = None, learners: Sequence[int] | None = None,
-                  repeats: int = 1) -> list[dict]:
+                  repeats: int = 1, noise_seed: int = hardware.HARDWARE.noise_seed) -> list[dict]:
     """Each chosen learner's final policy (its mean, no exploration noise) walking from the
     standing pose for ``seconds`` on ``robot``, ``repeats`` times (each walk its own batch
-    row, hence on the hardware robot its own sensor-noise stream), all in one batch.
+    row, hence on the hardware robot its own sensor-noise stream, drawn from ``noise_seed``),
+    all in one batch.
 
     Per learner: index, k_s, seed, whether learning succeeded in simulation, ``walks`` (how
     many of the repeats went ``seconds`` without a fall), ``walked`` (all of them did), the
@@ -135,6 +137,10 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
     if repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {repeats}")
     spec, sim, task, state = runs.load_run(Path(run_dir), engine, robot=robot)
+    if isinstance(sim.engine, hardware.HardwareEngine) and noise_seed != sim.engine.mismatch.noise_seed:
+        mismatch = dataclasses.replace(sim.engine.mismatch, noise_seed=noise_seed)
+        sim = dataclasses.replace(sim, engine=hardware.HardwareEngine(sim.engine.inner, mismatch,
+                                                                      robots.platform(spec.platform)))
     chosen = runs.check_learners(spec, learners)
     rows = jnp.repeat(jnp.asarray(chosen), repeats)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
@@ -153,25 +159,28 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
 
 
 def hardware_transfer(run_dir: Path | str, seconds: float = 20.0, engine: str | None = None,
-             learners: Sequence[int] | None = None, repeats: int = 1) -> dict:
+             learners: Sequence[int] | None = None, repeats: int = 1,
+             noise_seed: int = hardware.HARDWARE.noise_seed) -> dict:
     """How many learned policies of a run walk ``seconds`` on the hardware robot.
 
     Every chosen learner walks once on the nominal robot (deterministic) and ``repeats``
-    times on the hardware robot, each time with other sensor noise (``walk_policies``).
+    times on the hardware robot, each time with other sensor noise, drawn from ``noise_seed``
+    (``walk_policies``).
     ``learners`` in the result has one row per learner with both outcomes. The counts are
     over the learners whose learning succeeded in simulation (the paper: 14 of 20 walked on
     QRIO): ``walk_hardware`` counts policies that walked in every repeat, ``walk_hardware_any``
     those that walked in at least one.
     """
     nominal = walk_policies(run_dir, "nominal", seconds, engine, learners)
-    on_hardware = walk_policies(run_dir, "hardware", seconds, engine, learners, repeats)
+    on_hardware = walk_policies(run_dir, "hardware", seconds, engine, learners, repeats, noise_seed)
     rows = [{"learner": n["learner"], "k_s": n["k_s"], "seed": n["seed"], "succeeded": n["succeeded"],
              "walked_nominal": n["walked"], "mean_vx_nominal": n["mean_vx"],
              "walked_hardware": h["walked"], "walks_hardware": h["walks"],
              "seconds_hardware": h["seconds"], "mean_vx_hardware": h["mean_vx"]}
             for n, h in zip(nominal, on_hardware)]
     learned = [r for r in rows if r["succeeded"]]
-    return {"seconds": seconds, "repeats": repeats, "mismatch": dataclasses.asdict(hardware.HARDWARE),
+    mismatch = dataclasses.replace(hardware.HARDWARE, noise_seed=noise_seed)
+    return {"seconds": seconds, "repeats": repeats, "mismatch": dataclasses.asdict(mismatch),
             "succeeded_in_simulation": len(learned),
             "walk_nominal": sum(r["walked_nominal"] for r in learned),
             "walk_hardware": sum(r["walked_hardware"] for r in learned),
