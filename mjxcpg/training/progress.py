@@ -10,7 +10,7 @@ need more than 2t as fewer), within the budget; then the trials after success.  
 success of this project's learners are heavy-tailed in just this way (a few k_s = 0 learners
 take ten times the others).  A learner's own falls bound each draw: the streak it needs
 takes ``trials_to_streak`` trials on average at the fall rate its history gives
-(``history_fall_rate``: streaks completed at the rates of its windows of ``RECENT_TRIALS``
+(``history_fall_rate``: streaks completed at the rates of its windows of ``WINDOW_TRIALS``
 trials; an overestimate for a learner that is still learning not to fall).  Never fewer
 than the fall-free streak it still needs, never more than the budget.  Its remaining trials
 last as long as its trials so far did on average, except that streak, whose trials run to
@@ -47,7 +47,7 @@ from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training import train
 
 _RATE_CHUNKS = 5  # chunks whose median wall time per simulated second sets a size's pace
-RECENT_TRIALS = 50  # the trials of a window whose falls give one fall rate of a learner
+WINDOW_TRIALS = 50  # the trials of a window whose falls give one fall rate of a learner
 ETA_DRAWS = 256     # draws of the learners' totals; the time left is their mean (module docstring)
 
 
@@ -107,24 +107,25 @@ def trials_to_streak(fall_rate: float, streak: int, needed: int) -> float:
     return (q ** -needed - q ** -streak) / fall_rate
 
 
-def recent_fall_rate(falls: np.ndarray, trials: np.ndarray, window: int = RECENT_TRIALS) -> np.ndarray:
-    """Per learner, (falls + 1) / (n + 2) over its last n = min(trials, ``window``) trials
-    (Laplace's rule: never exactly 0 or 1); ``falls``: (learners, budget) per trial."""
-    rates = np.empty(len(trials))
-    for i, n in enumerate(trials):
-        recent = np.asarray(falls[i, max(0, n - window):n], np.float64)
-        rates[i] = (recent.sum() + 1.0) / (recent.size + 2.0)
-    return rates
+def recent_fall_rate(falls: np.ndarray, trials: np.ndarray, window: int = WINDOW_TRIALS) -> np.ndarray:
+    """Per learner, ``laplace_rate`` over its last min(trials, ``window``) trials (never
+    exactly 0 or 1); ``falls``: (learners, budget) per trial."""
+    return np.array([laplace_rate(falls[i, max(0, n - window):n]) for i, n in enumerate(trials)])
 
 
-def history_fall_rate(falls: np.ndarray, trials: np.ndarray, needed: int, window: int = RECENT_TRIALS) -> np.ndarray:
+def laplace_rate(falls: np.ndarray) -> float:
+    """(falls + 1) / (n + 2) over n trials' ``falls`` (Laplace's rule of succession)."""
+    return (float(np.sum(falls)) + 1.0) / (np.size(falls) + 2.0)
+
+
+def history_fall_rate(falls: np.ndarray, trials: np.ndarray, needed: int, window: int = WINDOW_TRIALS) -> np.ndarray:
     """Per learner, the fall rate whose streak of ``needed`` takes as long on average
     (``trials_to_streak``) as it would if the learner's coming trials fell as its past ones
     did: its trials so far cut into windows of ``window`` back from the newest, each window's
     rate by Laplace's rule, and streaks completed at each window's rate, 1 / trials_to_streak
     per trial, for the window's share of the trials.  Equal to every window's rate when they
     are all equal.  The waiting time is so steep a function of the rate (0.14 and 0.26 wait
-    135 and 1,600 trials for 20) that one window's count, its standard deviation 0.06 at 0.2
+    139 and 1,580 trials for 20) that one window's count, its standard deviation 0.06 at 0.2
     over 50 trials, says little; a learner whose rate wanders is most likely to finish in its
     better stretches, which the mean of the completion rates counts and a mean rate does not.
     ``falls``: (learners, budget) per trial; 1.0 before any trial."""
@@ -135,10 +136,8 @@ def history_fall_rate(falls: np.ndarray, trials: np.ndarray, needed: int, window
         edges = np.arange(n, 0, -window)[::-1]
         completions = 0.0
         for end in edges:
-            start = max(0, end - window)
-            segment = np.asarray(falls[i, start:end], np.float64)
-            rate = (segment.sum() + 1.0) / (segment.size + 2.0)
-            completions += segment.size / trials_to_streak(rate, 0, needed)
+            segment = falls[i, max(0, end - window):end]
+            completions += segment.size / trials_to_streak(laplace_rate(segment), 0, needed)
         rates[i] = _rate_for_wait(n / completions, needed) if completions > 0 else 1.0
     return rates
 
