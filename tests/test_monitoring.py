@@ -17,9 +17,9 @@ from tensorboard.compat.proto.event_pb2 import Event
 from mjxcpg.learning.learner import TrialParams
 from mjxcpg.training import train
 from mjxcpg.training.events import RunEvents, read_scalars
-from mjxcpg.training.progress import (RunProgress, compile_seconds_left, cost_model, lindy_mean, pareto_draws,
-                                      history_fall_rate, recent_fall_rate, remaining_seconds_simulated, sampled_total_trials,
-                                      trials_to_streak, wall_seconds_left)
+from mjxcpg.training.progress import (RunProgress, compile_seconds_left, cost_model, history_fall_rate,
+                                      lindy_mean, pareto_draws, recent_fall_rate, remaining_seconds_simulated,
+                                      sampled_total_trials, trials_to_streak, wall_seconds_left)
 from mjxcpg.training.train import AheadOfTime
 
 

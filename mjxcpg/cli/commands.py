@@ -30,7 +30,8 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         from mjxcpg.training.runs import check_learners, load_run
 
         if args.controller is not None:
-            raise UserError("--controller walks a hand-designed controller, --checkpoint a learned one: give one of them")
+            raise UserError("--controller walks a hand-designed controller, --checkpoint a learned one: "
+                            "give one of them")
         spec, sim, task, state = load_run(Path(args.checkpoint), args.engine, args.slope)
         if args.platform not in (None, spec.platform):
             raise UserError(f"{args.checkpoint} was learned on {spec.platform}, not {args.platform}")

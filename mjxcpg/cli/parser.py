@@ -164,7 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
     evaluation.add_argument("--seed", type=_number(checks.SEED), default=None,
-                            help="seed of the perturbations and, with --robot hardware, of the sensor noise (default 0)")
+                            help="seed of the perturbations and, with --robot hardware, of the sensor noise "
+                                 "(default 0)")
     evaluation.add_argument("--hand-seconds", type=_number(checks.NON_NEGATIVE), default=None,
                             help="hand-designed feedback first for this long, as at a learning trial's start "
                                  "(default 0: each policy from standing)")

@@ -26,7 +26,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg import robots
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.physics import hardware
@@ -138,9 +137,7 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
         raise ValueError(f"repeats must be at least 1, got {repeats}")
     spec, sim, task, state = runs.load_run(Path(run_dir), engine, robot=robot)
     if isinstance(sim.engine, hardware.HardwareEngine) and noise_seed != sim.engine.mismatch.noise_seed:
-        mismatch = dataclasses.replace(sim.engine.mismatch, noise_seed=noise_seed)
-        sim = dataclasses.replace(sim, engine=hardware.HardwareEngine(sim.engine.inner, mismatch,
-                                                                      robots.platform(spec.platform)))
+        sim = dataclasses.replace(sim, engine=sim.engine.with_noise_seed(noise_seed))
     chosen = runs.check_learners(spec, learners)
     rows = jnp.repeat(jnp.asarray(chosen), repeats)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)

@@ -118,9 +118,14 @@ class HardwareEngine(Engine):
         self.inner = inner
         self.name = inner.name
         self.mismatch = mismatch
+        self.robot = robot
         self._gyro = _sensor_slice(inner.model, robot.gyro)
         self._forces = tuple(_sensor_slice(inner.model, leg.force)[0] for leg in robot.legs)
         self._ctrl_qposadr = inner.model.jnt_qposadr[inner.model.actuator_trnid[:, 0]]
+
+    def with_noise_seed(self, noise_seed: int) -> HardwareEngine:
+        """This robot, its sensor noise drawn from ``noise_seed`` instead."""
+        return HardwareEngine(self.inner, dataclasses.replace(self.mismatch, noise_seed=noise_seed), self.robot)
 
     def init(self, qpos: np.ndarray, batch: int) -> HardwareState:
         m = self.mismatch

@@ -56,8 +56,9 @@ def sampled_total_trials(trial: TrialParams, k_s: np.ndarray, trials: np.ndarray
                          rng: np.random.Generator, fall_rate: np.ndarray | None = None) -> np.ndarray:
     """(draws, learners): draws of each learner's number of trials when it finishes (exact
     once it has succeeded or is done); ``fall_rate``, each learner's fall rate
-    (``history_fall_rate``), bounds the draws (module docstring).  Each learner has its own column of uniform numbers from
-    ``rng``, so its draws do not move when another learner succeeds or finishes."""
+    (``history_fall_rate``), bounds the draws (module docstring).  Each learner has its own
+    column of uniform numbers from ``rng``, so its draws do not move when another learner
+    succeeds or finishes."""
     totals = np.tile(trials.astype(np.float64), (draws, 1))
     uniform = rng.random((draws, len(trials)))
     for i in np.flatnonzero(~done):
@@ -138,7 +139,7 @@ def history_fall_rate(falls: np.ndarray, trials: np.ndarray, needed: int, window
         for end in edges:
             segment = falls[i, max(0, end - window):end]
             completions += segment.size / trials_to_streak(laplace_rate(segment), 0, needed)
-        rates[i] = _rate_for_wait(n / completions, needed) if completions > 0 else 1.0
+        rates[i] = _rate_for_wait(n / completions, needed)
     return rates
 
 
