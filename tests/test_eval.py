@@ -151,6 +151,40 @@ def test_tilted_floor_reaches_the_c_engines():
     np.testing.assert_allclose(normal, [-math.sin(math.radians(5.0)), 0.0, math.cos(math.radians(5.0))], atol=1e-6)
 
 
+@pytest.mark.parametrize("slope_deg", [4.0, -4.0])
+def test_standing_pose_on_a_slope_rests_every_sole_corner_on_the_floor(slope_deg):
+    """Set down on an incline, the robot stands tilted with the floor: its eight sole corners
+    (3 mm spheres) all 1 mm above the floor plane along its normal, as on level ground."""
+    import math
+
+    import mujoco
+
+    from mjxcpg.physics.model import load_model
+
+    level, tilted = make_simulation("mujoco"), make_simulation("mujoco", slope_deg=slope_deg)
+    model = load_model(slope_deg)
+    data = mujoco.MjData(model)
+    data.qpos[:] = tilted.qpos0
+    mujoco.mj_kinematics(model, data)
+    slope = math.radians(slope_deg)
+    normal = np.array([-math.sin(slope), 0.0, math.cos(slope)])
+    corners = [i for i in range(model.ngeom) if "sole_" in (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, i) or "")]
+    assert len(corners) == 8
+    clearance = [data.geom_xpos[i] @ normal - model.geom_size[i][0] for i in corners]
+    np.testing.assert_allclose(clearance, 0.001, atol=1e-6)
+    np.testing.assert_array_equal(tilted.qpos0[7:], level.qpos0[7:])  # the same joint angles
+
+
+def test_heading_drift_unwraps_across_the_half_turn():
+    """A heading that turns from +170 to -170 degrees (through 180) has drifted by +20, not -340."""
+    headings = np.radians([170.0, 175.0, 180.0, -175.0, -170.0])
+    log = evaluate.TouchdownLog(count=np.array([5]), step=np.arange(5)[None], length=np.zeros((1, 5)),
+                                position=np.zeros((1, 5)), heading=headings[None])
+    drift, largest = evaluate._heading_drift(log, 0, 0, 4)
+    assert drift == pytest.approx(20.0) and largest == pytest.approx(20.0)
+    assert evaluate._heading_drift(log, 0, 4, 4) == (None, None)  # fewer than one cycle
+
+
 def test_least_squares_slope_recovers_a_line():
     x = np.linspace(0.01, 0.05, 20)
     fit = evaluate.least_squares_slope(x, -0.3 * x + 0.04)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax.numpy as jnp
 import mujoco
@@ -95,9 +96,20 @@ def build_simulation(spec: SimulationSpec) -> Simulation:
 
 
 def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: float) -> np.ndarray:
-    """A standing pose on flat ground with both ankles at (x0, leg_length) below the hips."""
+    """A standing pose with both ankles at (x0, leg_length) below the hips, the soles flat on
+    the floor 1 mm above it.
+
+    On an inclined floor the whole robot is tilted with it, as a robot that holds its soles
+    parallel to its pelvis stands when set down on an incline: level, its soles would meet
+    the floor on an edge, one end in it and the other above it.
+    """
     qpos = model.qpos0.copy()
     qpos[2] = layout.pelvis_height(leg_length) + 0.001
+    if layout.slope_tan != 0.0:
+        # Rotated about the floor's origin as the floor is: uphill (+x) the robot leans back.
+        slope = math.atan(layout.slope_tan)
+        qpos[0], qpos[2] = -qpos[2] * math.sin(slope), qpos[2] * math.cos(slope)
+        qpos[3:7] = [math.cos(slope / 2), 0.0, -math.sin(slope / 2), 0.0]
     angles = np.asarray(ik.leg_joint_angles(jnp.float32(x0), jnp.float32(leg_length), layout.geometry))
     for ctrl_ids in (layout.left_leg_ctrl, layout.right_leg_ctrl):
         for k, actuator in enumerate(ctrl_ids):

@@ -70,13 +70,34 @@ def least_squares_slope(x: np.ndarray, y: np.ndarray) -> dict:
     return {"slope": float(a), "intercept": float(b), "slope_stderr": stderr}
 
 
+def _heading_drift(log: TouchdownLog, k: int, first: int, cycles: int) -> tuple[float | None, float | None]:
+    """Over the touchdowns of ``cycles`` gait cycles from touchdown ``first``: the heading's
+    change from the first to the last, and its largest departure from the first (degrees)."""
+    n = min(cycles + 1, int(log.count[k]) - first, log.heading.shape[1] - first)
+    if n < 2:
+        return None, None
+    heading = np.degrees(np.unwrap(np.asarray(log.heading[k, first:first + n], np.float64)))
+    heading -= heading[0]
+    return float(heading[-1]), float(heading[np.argmax(np.abs(heading))])
+
+
 def return_map_results(state: EvalState, protocol: Protocol, dt: float) -> list[dict]:
-    """Per robot: velocity, fixed point, the (x_n, x_{n+1}) pairs and the eigenvalue."""
+    """Per robot: velocity, fixed point, the (x_n, x_{n+1}) pairs and the eigenvalue; and how
+    the unperturbed walk lasts: whether it fell before its last unperturbed cycle, its speed
+    over the first and over the second half of those cycles, and its heading's drift."""
     out = []
     log, probe = state.log, state.probe
     for k in range(log.count.shape[0]):
         first = _first_settled(log, k, protocol)
         velocity, fixed_point, cycle = _cycles(log, k, first, protocol.fixed_point_steps, dt)
+        half = protocol.fixed_point_steps // 2
+        first_half_vx = _cycles(log, k, first, half, dt)[0]
+        last = first + protocol.fixed_point_steps  # the touchdown that ends the unperturbed cycles
+        last_half_vx = _cycles(log, k, first + half, protocol.fixed_point_steps - half, dt)[0] \
+            if int(log.count[k]) > last else float("nan")
+        drift, largest = _heading_drift(log, k, first, protocol.fixed_point_steps)
+        unperturbed_done = min(int(log.count[k]), log.step.shape[1]) > last and (
+            not state.fallen[k] or state.fall_step[k] > log.step[k, last])
         pairs = [(float(log.length[k, i]), float(log.length[k, i + 1]), float(probe.offsets[k, j]))
                  for j, i in enumerate(probe.perturbed_touchdown[k])
                  if i >= 0 and i + 1 < min(int(log.count[k]), protocol.capacity)]
@@ -87,6 +108,9 @@ def return_map_results(state: EvalState, protocol: Protocol, dt: float) -> list[
             "fell": bool(state.fallen[k]),
             "fall_seconds": float(state.fall_step[k] * dt) if state.fallen[k] else None,
             "mean_vx": velocity, "gait_cycle_s": cycle,
+            "walked_unperturbed_cycles": bool(unperturbed_done),
+            "mean_vx_first_half": first_half_vx, "mean_vx_last_half": last_half_vx,
+            "heading_drift_deg": drift, "heading_largest_deg": largest,
             "fixed_point": fixed_point,
             "fixed_point_steps": int(np.clip(int(log.count[k]) - first - 1, 0, protocol.fixed_point_steps)),
             "perturbations": len(pairs), "x_n": x_n.tolist(), "x_next": x_next.tolist(),

@@ -9,6 +9,7 @@ a module with those functions and its line in ``EVALUATIONS``.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -87,6 +88,26 @@ class Evaluation:
 
 _COUNT = checks.NON_NEGATIVE_COUNT
 
+# The hand-designed feedback and a_5 = 0 walk each protocol beside the policies, under keys
+# of their own: far past any learner's index, so that no learner's draws are theirs.
+REFERENCES = {"hand": ("hand-designed feedback", 1_000_000), "zero": ("a_5 = 0", 1_000_001)}
+
+
+def evaluate_references(context: EvalContext) -> dict:
+    """Velocity and return map, slopes and pushes of the hand-designed feedback and of
+    a_5 = 0, in the same protocols as the policies (``REFERENCES``)."""
+    out = {}
+    for actor, (label, index) in REFERENCES.items():
+        task = dataclasses.replace(context.task, trial=dataclasses.replace(context.task.trial, actor=actor))
+        weights = jax.tree.map(lambda w: w[:1], context.weights)  # unused by these actors
+        out[actor] = {
+            "label": label,
+            "return_map": evaluate.evaluate_return_map(context.sim, task, weights, [index], context.params)[0],
+            "slopes": evaluate.evaluate_slopes(context.sim, task, weights, [index], context.params,
+                                               robot=context.robot)[0],
+            "pushes": evaluate.evaluate_pushes(context.sim, task, weights, [index], context.params)[0]}
+    return out
+
 EVALUATIONS: tuple[Evaluation, ...] = (
     Evaluation("return_map", "velocity and return map",
                lambda c: evaluate.evaluate_return_map(c.sim, c.task, c.weights, c.learners, c.params),
@@ -103,6 +124,8 @@ EVALUATIONS: tuple[Evaluation, ...] = (
                lambda c: evaluate.evaluate_pushes(c.sim, c.task, c.weights, c.learners, c.params),
                report.summarise_pushes, report.pushes_section,
                options=(Option("push_rounds", _COUNT, "bisection rounds per push direction"),)),
+    Evaluation("references", "the hand-designed feedback and a_5 = 0 in the same protocols",
+               evaluate_references, report.summarise_references, report.references_section, per_learner=False),
     Evaluation("transfer", "transfer: walks per policy on the hardware robot",
                lambda c: transfer.hardware_transfer(c.run_dir, engine=c.engine, learners=c.learners,
                                                     repeats=c.transfer_repeats, noise_seed=c.params.seed),
@@ -112,14 +135,25 @@ EVALUATIONS: tuple[Evaluation, ...] = (
 NAMES = tuple(e.name for e in EVALUATIONS)
 
 
+def _trial_walk_speeds(run_dir: Path) -> dict[int, float]:
+    """Per learner, its final policy's speed in the run's own 20 s walk (summary.json: started
+    as its trials were); empty for a run without a summary."""
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        return {}
+    return {row["learner"]: row["mean_vx"] for row in json.loads(path.read_text())["learners"]}
+
+
 def evaluate_run(context: EvalContext, names: Sequence[str] = NAMES,
                  progress: Callable[[str], None] | None = None) -> dict:
     """The evaluations ``names`` (those that apply to the context's robot) of the context's learners."""
     spec, book = context.spec, jax.device_get(context.state.learners.book)
+    trial_walks = _trial_walk_speeds(context.run_dir)
     result = {"engine": context.sim.engine.name, "robot": context.robot, "params": dataclasses.asdict(context.params),
               "learners": [{"learner": k, "k_s": spec.k_s[k], "seed": spec.seeds[k],
                             "succeeded": bool(book.trials_to_success[k] >= 0),
-                            "trials": int(book.trial[k])} for k in context.learners]}
+                            "trials": int(book.trial[k]),
+                            "trial_walk_vx": trial_walks.get(k)} for k in context.learners]}
     for evaluation in EVALUATIONS:
         if evaluation.name not in names or not evaluation.applies_to(context.robot):
             continue

@@ -59,6 +59,20 @@ def header(run_dir: Path, result: dict, summary: dict, table1_text: str | None) 
 
 # ---------------------------------------------------------------- velocity and return map
 
+LASTING_SPEED_FRACTION = 0.8        # a lasting walk keeps this much of its trial walk's speed
+
+
+def walk_lasts(row: dict) -> bool | None:
+    """Whether a learner's walk lasts: no fall over the unperturbed cycles, and their second
+    half at least ``LASTING_SPEED_FRACTION`` of the speed of the run's own 20 s walk (None
+    without that walk's speed, from a run with no summary)."""
+    rm, reference = row["return_map"], row.get("trial_walk_vx")
+    if reference is None:
+        return None
+    return bool(rm.get("walked_unperturbed_cycles")) and _finite(rm.get("mean_vx_last_half")) \
+        and rm["mean_vx_last_half"] >= LASTING_SPEED_FRACTION * reference
+
+
 def summarise_return_map(result: dict) -> dict:
     good = _succeeded(result)
     fitted = [r for r in good if r["return_map"]["eigenvalue"] is not None]
@@ -68,7 +82,10 @@ def summarise_return_map(result: dict) -> dict:
     for r in good:
         if not r["return_map"]["fell"] and _finite(r["return_map"]["mean_vx"]):
             by_ks[r["k_s"]].append(r["return_map"]["mean_vx"])
+    propelled = [r for r in good if r["k_s"] >= 1]
+    lasting = [r for r in propelled if walk_lasts(r)]
     return dict(
+        lasting_propelled=f"{len(lasting)}/{len(propelled)}",
         velocity_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(by_ks.items())},
         eigenvalue_median=float(np.median(eig)) if eig else None,
         eigenvalue_range=[float(min(eig)), float(max(eig))] if eig else None,
@@ -96,6 +113,22 @@ def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
                          for r in by_ks[k_s])
         lines.append(f"| {k_s:g} | {len(ok)}/{sum(r['succeeded'] for r in by_ks[k_s])} | {_fmt(mean)} | {each} |")
     lines += ["", "![velocity vs k_s](eval/velocity_vs_ks.png)", "",
+              "## Does the walk last?", "",
+              f"Each policy's speed over the first and the second half of the same "
+              f"{result['params']['fixed_point_steps']} unperturbed cycles, beside its speed in the run's "
+              "own 20 s walk (summary.json, started as its trials were), and its heading's drift over "
+              f"them. A walk lasts when it does not fall in them and keeps at least "
+              f"{LASTING_SPEED_FRACTION:.0%} of its 20 s speed in their second half. "
+              f"Successful k_s >= 1 policies whose walk lasts: **{summary['lasting_propelled']}**.", "",
+              "| learner | k_s | 20 s walk (m/s) | first half | second half | heading drift (deg) | "
+              "largest heading (deg) | lasts |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        rm, lasts = r["return_map"], walk_lasts(r)
+        lines.append(f"| {r['learner']} | {r['k_s']:g} | {_fmt(r.get('trial_walk_vx'))} | "
+                     f"{_fmt(rm.get('mean_vx_first_half'))} | {_fmt(rm.get('mean_vx_last_half'))} | "
+                     f"{_fmt(rm.get('heading_drift_deg'), '+.1f')} | {_fmt(rm.get('heading_largest_deg'), '+.1f')} | "
+                     f"{'-' if lasts is None else 'yes' if lasts else 'no'} |")
+    lines += ["",
               "## Return-map stability (Fig 8)", "",
               "State: the step length (fore-aft distance from the right ankle to the left) at each "
               "left touchdown. Perturbation: the target of (q5 - q6) offset by a uniform "
@@ -190,6 +223,41 @@ def pushes_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
     medians = ", ".join(f"{n} {_fmt(summary[f'push_{n}_median_Ns'], '.2f')}" for n in names)
     lines += ["", f"Medians over the successful policies (N s): {medians}.", "",
               "![pushes](eval/pushes.png)", ""]
+    return lines
+
+
+# ---------------------------------------------------------------- the references
+
+def summarise_references(result: dict) -> dict:
+    out = {}
+    for actor, ref in result["references"].items():
+        rm, slopes = ref["return_map"], ref["slopes"]
+        out[f"{actor}_slopes_deg"] = [slopes["uphill_deg"], slopes["downhill_deg"]]
+        out[f"{actor}_mean_vx"] = rm["mean_vx"]
+        out[f"{actor}_pushes_Ns"] = {name: p["impulse"] for name, p in ref["pushes"].items()}
+    return out
+
+
+def references_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
+    """The hand-designed feedback and a_5 = 0 in the protocols the policies walked."""
+    refs = result["references"]
+    names = list(next(iter(refs.values()))["pushes"])
+    lines = ["## The hand-designed feedback and a_5 = 0, in the same protocols", "",
+             "What the policies' figures above compare with: the feedback that starts every learning "
+             "trial (a_5 = K d theta_roll/dt) and no propulsive feedback at all, each walked as the "
+             "policies were (same start, same protocols).", "",
+             "| feedback | mean velocity (m/s) | first / second half | heading drift (deg) | fell | "
+             "eigenvalue | uphill (deg) | downhill (deg) | " + " | ".join(f"push {n} (N s)" for n in names) + " |",
+             "|---|---|---|---|---|---|---|---|" + "---|" * len(names)]
+    for ref in refs.values():
+        rm, slopes = ref["return_map"], ref["slopes"]
+        fell = f"at {rm['fall_seconds']:.1f} s" if rm["fell"] else "no"
+        pushes = [(">=" if ref["pushes"][n]["capped"] else "") + f"{ref['pushes'][n]['impulse']:.2f}" for n in names]
+        lines.append(f"| {ref['label']} | {_fmt(rm['mean_vx'])} | {_fmt(rm.get('mean_vx_first_half'))} / "
+                     f"{_fmt(rm.get('mean_vx_last_half'))} | {_fmt(rm.get('heading_drift_deg'), '+.1f')} | {fell} | "
+                     f"{_fmt(rm['eigenvalue'])} | {_fmt(slopes['uphill_deg'], '+.0f')} | "
+                     f"{_fmt(slopes['downhill_deg'], '+.0f')} | " + " | ".join(pushes) + " |")
+    lines.append("")
     return lines
 
 

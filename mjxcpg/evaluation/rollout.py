@@ -62,12 +62,13 @@ def perturbed_targets(task: Task, q: jax.Array, offset: jax.Array) -> jax.Array:
 
 class TouchdownLog(NamedTuple):
     """Left touchdowns of one robot: count, then per touchdown its control period, the step
-    length and the pelvis' forward position."""
+    length, the pelvis' forward position and its heading (yaw, rad)."""
 
     count: jax.Array
     step: jax.Array
     length: jax.Array
     position: jax.Array
+    heading: jax.Array
 
 
 class EvalState(NamedTuple):
@@ -100,7 +101,8 @@ def init_eval(sim: Simulation, protocol: Protocol, keys: jax.Array, pushes: jax.
         probe=jax.vmap(functools.partial(init_probe, protocol))(keys, pushes),
         log=TouchdownLog(count=jnp.zeros(batch, jnp.int32), step=jnp.full((batch, c), -1, jnp.int32),
                          length=jnp.full((batch, c), jnp.nan, jnp.float32),
-                         position=jnp.full((batch, c), jnp.nan, jnp.float32)))
+                         position=jnp.full((batch, c), jnp.nan, jnp.float32),
+                         heading=jnp.full((batch, c), jnp.nan, jnp.float32)))
 
 
 def is_done(protocol: Protocol, state: EvalState) -> jax.Array:
@@ -132,7 +134,8 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
             step=log.step.at[slot].set(jnp.where(write, t, log.step[slot])),
             length=log.length.at[slot].set(jnp.where(
                 write, step_length(layout, joints, sensors.qpos, obs), log.length[slot])),
-            position=log.position.at[slot].set(jnp.where(write, obs.forward_position, log.position[slot])))
+            position=log.position.at[slot].set(jnp.where(write, obs.forward_position, log.position[slot])),
+            heading=log.heading.at[slot].set(jnp.where(write, obs.heading, log.heading[slot])))
         probe = advance_probe(protocol, probe, t, touchdown, index)
         offset, force = probe_drive(protocol, probe, t)
         a5 = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)

@@ -118,6 +118,7 @@ class Observation(NamedTuple):
     forward_velocity: jax.Array  # ground truth: pelvis velocity along +x (m/s)
     forward_position: jax.Array
     uprightness: jax.Array   # ground truth: z component of the pelvis' up axis
+    heading: jax.Array       # ground truth: pelvis yaw about the world's z (rad, to the left > 0)
 
 
 def observe(layout: Layout, sensors: Sensors) -> Observation:
@@ -126,7 +127,7 @@ def observe(layout: Layout, sensors: Sensors) -> Observation:
     w, x, y, z = (sd[layout.quat + k] for k in range(4))
     roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
-    qw, qx, qy, _ = (qpos[3 + k] for k in range(4))
+    qw, qx, qy, qz = (qpos[3 + k] for k in range(4))
     return Observation(
         gyro=sd[layout.gyro:layout.gyro + 3],
         roll=roll,
@@ -137,4 +138,5 @@ def observe(layout: Layout, sensors: Sensors) -> Observation:
         forward_velocity=qvel[0],
         forward_position=qpos[0],
         uprightness=1 - 2 * (qx * qx + qy * qy),
+        heading=jnp.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz)),
     )

@@ -1,0 +1,135 @@
+"""What a gait does over a long walk: heading, speed, CPG amplitude and period, a_5, per window.
+
+Walks each chosen final policy (its mean, no noise), or a control (``--controller hand``:
+the hand-designed feedback; ``zero``: a_5 = 0), from standing for ``--seconds`` on the
+run's engine, all in one batch, and prints per learner and per window of ``--window``
+seconds (after the first 2 s):
+
+* heading: the pelvis' yaw (degrees, positive to the left), at the window's end;
+* v_x: the mean velocity along the world's +x, as eval's Fig 7 and the trials' reward
+  measure it; v_head: the mean speed along the robot's own heading (the pelvis' forward
+  axis projected on the floor); y: the lateral position at the window's end (m);
+* amp z / amp x: the amplitude (half the peak-to-peak) of q1 - q2 and q5 - q6, the CPG
+  outputs of eqs 4-7; period: the mean interval between upward zero crossings of q1 - q2;
+* |a5|: the mean magnitude of the propulsive feedback; h: the mean pelvis height.
+
+    NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 61 --seconds 100
+    NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --controller hand --seconds 100
+
+With ``--json FILE`` every window of every learner is also written there.
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxcpg.control import cpg
+from mjxcpg.control.controller import control_step, hand_feedback
+from mjxcpg.control.walk import has_fallen, initial_cpg
+from mjxcpg.jaxutil import xla
+from mjxcpg.learning.learner import policy_mean_feedback
+from mjxcpg.physics.model import observe
+from mjxcpg.training import runs
+
+
+def yaw_of(quat: np.ndarray) -> np.ndarray:
+    """Yaw (rad) of the wxyz quaternion(s) on the last axis: rotation about the world's z."""
+    w, x, y, z = (quat[..., k] for k in range(4))
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def record_walk(sim, task, weights, feedback, steps: int):
+    """Per control period and robot: free-joint qpos (7), qvel (2), CPG outputs (6), a_5, fallen."""
+    layout, params, engine = sim.layout, sim.params, sim.engine
+
+    def one_robot(cpg_state, sensors, w):
+        obs = observe(layout, sensors)
+        a5 = feedback(obs, w)
+        cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
+        return cpg_state, ctrl, a5, has_fallen(layout, obs), obs.height
+
+    def body(carry, _):
+        physics, cpg_state, fallen = carry
+        sensors = engine.sensors(physics)
+        cpg_state, ctrl, a5, fell, height = jax.vmap(one_robot)(cpg_state, sensors, weights)
+        fallen = fallen | fell
+        physics = engine.step(physics, ctrl, ~fallen)
+        row = (sensors.qpos[:, :7], sensors.qvel[:, :2], cpg.output(cpg_state), a5, fallen, height)
+        return (physics, cpg_state, fallen), row
+
+    @xla.jit
+    def walk():
+        batch = jax.tree.leaves(weights)[0].shape[0]
+        carry = (engine.init(sim.qpos0, batch), initial_cpg(batch), jnp.zeros(batch, bool))
+        return jax.lax.scan(body, carry, None, length=steps)[1]
+
+    return [np.asarray(x) for x in jax.device_get(walk())]
+
+
+def windows(rows, k: int, dt: float, window_s: float, settle_s: float = 2.0) -> list[dict]:
+    qpos, qvel, q, a5, fallen, height = (r[:, k] for r in rows)
+    yaw = np.unwrap(yaw_of(qpos[:, 3:7]))
+    heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+    v_head = np.sum(qvel * heading, axis=1)
+    stepping, propulsion = q[:, 0] - q[:, 1], q[:, 4] - q[:, 5]
+    per = round(window_s / dt)
+    out = []
+    for start in range(round(settle_s / dt), len(yaw) - per + 1, per):
+        s = slice(start, start + per)
+        if fallen[s].any():
+            out.append({"t0": start * dt, "fell": True})
+            break
+        sway = stepping[s] - stepping[s].mean()
+        up = np.flatnonzero((sway[:-1] < 0) & (sway[1:] >= 0))
+        out.append({
+            "t0": start * dt, "fell": False, "heading_deg": float(np.degrees(yaw[s][-1])),
+            "vx": float((qpos[s][-1, 0] - qpos[s][0, 0]) / ((per - 1) * dt)),
+            "v_head": float(np.mean(v_head[s])), "y": float(qpos[s][-1, 1]),
+            "amp_z": float(np.ptp(stepping[s]) / 2), "amp_x": float(np.ptp(propulsion[s]) / 2),
+            "period": float(np.mean(np.diff(up)) * dt) if len(up) > 2 else None,
+            "abs_a5": float(np.mean(np.abs(a5[s]))), "height": float(np.mean(height[s]))})
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--learners", type=int, nargs="+", default=None, help="default: all")
+    parser.add_argument("--controller", choices=("policy", "hand", "zero"), default="policy")
+    parser.add_argument("--seconds", type=float, default=100.0)
+    parser.add_argument("--window", type=float, default=10.0)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    spec, sim, task, state = runs.load_run(args.run)
+    chosen = runs.check_learners(spec, args.learners)
+    weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
+    feedback = {"policy": policy_mean_feedback(task),
+                "hand": lambda obs, w: hand_feedback(sim.params, obs),
+                "zero": lambda obs, w: jnp.zeros_like(obs.gyro[0])}[args.controller]
+    rows = record_walk(sim, task, weights, feedback, round(args.seconds / sim.control_dt))
+    results = {}
+    for j, learner in enumerate(chosen):
+        results[learner] = windows(rows, j, sim.control_dt, args.window)
+        print(f"\nlearner {learner} (k_s = {spec.k_s[learner]:g}, seed {spec.seeds[learner]}), {args.controller}")
+        print("| t (s) | heading (deg) | v_x | v_head | y (m) | amp z | amp x | period (s) | abs a5 | h (m) |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for w in results[learner]:
+            if w["fell"]:
+                print(f"| {w['t0']:.0f} | fell | | | | | | | | |")
+                continue
+            period = f"{w['period']:.3f}" if w["period"] else "-"
+            print(f"| {w['t0']:.0f} | {w['heading_deg']:+.1f} | {w['vx']:.4f} | {w['v_head']:.4f} | {w['y']:+.3f} "
+                  f"| {w['amp_z']:.3f} | {w['amp_x']:.3f} | {period} | {w['abs_a5']:.3f} | {w['height']:.4f} |")
+    if args.json:
+        args.json.write_text(json.dumps({str(k): v for k, v in results.items()}, indent=1))
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except runs.RunError as error:
+        raise SystemExit(f"long_walk: {error}") from None
