@@ -15,11 +15,13 @@ seconds (after the first 2 s):
 
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 61 --seconds 100
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --controller hand --seconds 100
+    NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 --h-heading 1
 
 With ``--json FILE`` every window of every learner is also written there.
 """
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -103,8 +105,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=100.0)
     parser.add_argument("--window", type=float, default=10.0)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--h-heading", type=float, default=None,
+                        help="the heading reflex's gain instead of the run's (rad of hip yaw per rad)")
     args = parser.parse_args()
     spec, sim, task, state = runs.load_run(args.run)
+    if args.h_heading is not None:
+        sim = sim.rebuild(params=dataclasses.replace(sim.params, h_heading=args.h_heading))
     chosen = runs.check_learners(spec, args.learners)
     weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
     feedback = {"policy": policy_mean_feedback(task),

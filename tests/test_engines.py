@@ -11,6 +11,9 @@ float32 rounding, amplified by the conditioning of the solve.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from typing import NamedTuple
 
 import jax
@@ -443,3 +446,20 @@ def test_native_step_threads_added_after_use_wait_for_the_next_call():
         in_xla, callback = rollout(engine.step), rollout(lambda s, u: engines._CEngine.step(engine, s, u))
         for a, b in zip(jax.tree.leaves(in_xla), jax.tree.leaves(callback)):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_native_threads_follow_the_cpus_the_process_may_use(monkeypatch):
+    """One thread per CPU of the process's affinity (as ``taskset`` or Slurm restricts it),
+    not per core of the machine; ``MJXCPG_NATIVE_THREADS`` overrides it, and a bad value
+    is refused."""
+    monkeypatch.delenv("MJXCPG_NATIVE_THREADS", raising=False)
+    one_cpu = min(os.sched_getaffinity(0))
+    code = ("import os; os.sched_setaffinity(0, {%d}); "
+            "from mjxcpg.physics.engines import native_threads; print(native_threads())" % one_cpu)
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True).stdout.strip() == "1"
+    monkeypatch.setenv("MJXCPG_NATIVE_THREADS", "5")
+    assert engines.native_threads() == 5
+    monkeypatch.setenv("MJXCPG_NATIVE_THREADS", "many")
+    with pytest.raises(ValueError, match="MJXCPG_NATIVE_THREADS"):
+        engines.native_threads()

@@ -124,3 +124,18 @@ def test_process_that_never_joins_is_named(tmp_path, present):
     assert len(err.strip().splitlines()) == 1, err
     assert f"process {1 - present}" in one_line_error(err) and "never" in err
     assert not (tmp_path / "run").exists()
+
+
+def test_error_in_one_process_ends_the_other_with_one_line(finished_quick, tmp_path):
+    """Process 0 refuses to resume a finished run of another config (an error on it alone):
+    both processes end within 60 s, each with one line, process 1's naming process 0 and
+    the cause; the finished run is left as it was."""
+    run = tmp_path / "run"
+    shutil.copytree(finished_quick, run)
+    start_time = time.perf_counter()
+    results = finish(start(SWEEP + ["--config", str(short_chunks(tmp_path)), "--resume"], run), timeout=120)
+    assert time.perf_counter() - start_time < 60
+    assert all(rc != 0 and len(err.strip().splitlines()) == 1 for rc, _, err in results), results
+    assert "another config" in results[0][2]
+    assert "process 0" in results[1][2] and "another config" in results[1][2]
+    assert_same_results(run, finished_quick)

@@ -37,6 +37,8 @@ class ControllerParams:
     control_dt: float = 0.008       # control period (s)
     cpg_substeps: int = 8           # Euler steps of the CPG per control period
     hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
+    h_heading: float = 0.0          # heading reflex gain (rad of hip yaw per rad of heading); 0: off
+    max_hip_yaw: float = 0.3        # the heading reflex's hip yaw limit (rad), inside the joints' +-0.5
 
     @classmethod
     def of(cls, robot: RobotDescription, **overrides) -> "ControllerParams":
@@ -75,11 +77,24 @@ def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, 
     return jnp.where(step < hand_steps, hand_feedback(params, obs), a5) if hand_steps else a5
 
 
-def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array) -> jax.Array:
-    """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,)."""
+def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:
+    """The hip yaw of both legs that turns the robot back to the world's +x: h_heading times
+    its heading (the pelvis' yaw), within +-max_hip_yaw.
+
+    A positive hip yaw turns the pelvis to the right about the stance foot, against a
+    heading to the left.  Not in the paper, whose robot walks a few metres; 0 by default.
+    """
+    return jnp.clip(params.h_heading * obs.heading, -params.max_hip_yaw, params.max_hip_yaw)
+
+
+def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array,
+                  hip_yaw: jax.Array | float = 0.0) -> jax.Array:
+    """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,), with
+    both hips yawed by ``hip_yaw`` (rad; the heading reflex)."""
     targets = cpg.leg_targets(q, params.x0, params.z0, params.amp_x, params.amp_z)
     left = ik.leg_joint_angles(targets.left_x, targets.left_z, layout.geometry)
     right = ik.leg_joint_angles(targets.right_x, targets.right_z, layout.geometry)
+    left, right = left.at[0].set(hip_yaw), right.at[0].set(hip_yaw)
     ctrl = jnp.asarray(layout.ctrl_home, dtype=left.dtype)
     ctrl = ctrl.at[jnp.array(layout.left_leg_ctrl)].set(left)
     return ctrl.at[jnp.array(layout.right_leg_ctrl)].set(right)
@@ -90,4 +105,4 @@ def control_step(params: ControllerParams, layout: Layout, state: cpg.CPGState,
     """One control period: reflexes and a_5 drive the CPG; its outputs become servo targets."""
     feedback = cpg.feedback_vector(reflex_feedback(params, layout, obs), a5)
     state = cpg.integrate(params.cpg, state, feedback, params.control_dt, params.cpg_substeps)
-    return state, joint_targets(params, layout, cpg.output(state))
+    return state, joint_targets(params, layout, cpg.output(state), heading_reflex(params, obs))

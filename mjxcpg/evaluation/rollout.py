@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import mujoco
 
 from mjxcpg.control import cpg, ik
-from mjxcpg.control.controller import after_hand_start, control_step, joint_targets
+from mjxcpg.control.controller import after_hand_start, control_step, heading_reflex, joint_targets
 from mjxcpg.control.sim import Simulation
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.evaluation.protocol import EvalParams, Probe, Protocol, advance_probe, init_probe, probe_drive, probe_finished
@@ -51,13 +51,14 @@ def step_length(layout: Layout, joints: LegJoints, qpos: jax.Array, obs: Observa
     return jnp.cos(obs.pitch) * dx - jnp.sin(obs.pitch) * dz_down
 
 
-def perturbed_targets(task: Task, q: jax.Array, offset: jax.Array) -> jax.Array:
-    """Servo targets with the target of (q5 - q6) offset by ``offset`` (eqs 6-7).
+def perturbed_targets(task: Task, q: jax.Array, offset: jax.Array, obs: Observation) -> jax.Array:
+    """Servo targets with the target of (q5 - q6) offset by ``offset`` (eqs 6-7), the heading
+    reflex as in ``control_step``.
 
     p_x^l = X_0 - A_x (q5 - q6 + offset), p_x^r = X_0 + A_x (q5 - q6 + offset): the legs'
     fore-aft tip offset (right minus left) changes by 2 A_x offset, the CPG itself is untouched.
     """
-    return joint_targets(task.controller, task.layout, q.at[4].add(offset))
+    return joint_targets(task.controller, task.layout, q.at[4].add(offset), heading_reflex(task.controller, obs))
 
 
 class TouchdownLog(NamedTuple):
@@ -140,7 +141,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
         offset, force = probe_drive(protocol, probe, t)
         a5 = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)
         cpg_state, _ = control_step(task.controller, layout, cpg_state, obs, a5)
-        ctrl = perturbed_targets(task, cpg.output(cpg_state), offset)
+        ctrl = perturbed_targets(task, cpg.output(cpg_state), offset, obs)
         return cpg_state, ctrl, force, fell, unloaded, log, probe
 
     def body(state: EvalState, weights):

@@ -89,7 +89,7 @@ class Group:
         """Tell the others that this process stopped, and why (their next wait raises)."""
         if self.count > 1:
             try:
-                self.client.key_value_set(f"{_PREFIX}abort", f"process {self.index}: {message}",
+                self.client.key_value_set(f"{_PREFIX}abort/{self.index}", f"process {self.index}: {message}",
                                           allow_overwrite=True)
             except Exception:  # the store may be gone with its process; the watchdogs see that
                 pass
@@ -106,7 +106,8 @@ class Group:
                 if "DEADLINE_EXCEEDED" not in str(error):
                     raise ProcessError(f"process {self.index} lost the coordinator (process 0): "
                                        f"{_first_line(error)}") from None
-            for _, aborted in self.client.key_value_dir_get(f"{_PREFIX}abort"):
+            # A directory read lists the keys under ``abort/``, not a key named ``abort``.
+            for _, aborted in self.client.key_value_dir_get(f"{_PREFIX}abort/"):
                 raise ProcessError(f"the run stopped in {aborted}")
 
     # ------------------------------------------------------------ liveness

@@ -214,6 +214,18 @@ class MujocoEngine(_CEngine):
         return new_physics, sensordata
 
 
+def native_threads() -> int:
+    """The native engine's thread count: ``MJXCPG_NATIVE_THREADS`` where set, else the CPUs
+    this process may run on (its affinity, as Slurm's ``--cpus-per-task`` or ``taskset`` set
+    it, not the machine's cores)."""
+    override = os.environ.get("MJXCPG_NATIVE_THREADS")
+    if override:
+        if not override.isdigit() or int(override) < 1:
+            raise ValueError(f"MJXCPG_NATIVE_THREADS must be a positive whole number, not {override!r}")
+        return int(override)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 class NativeEngine(_CEngine):
     """MuJoCo C on all cores: the fast batch engine for CPUs.  Inside XLA through the FFI
     handler of ``native_step`` when it could be built, else ``mujoco.rollout``'s thread pool
@@ -226,7 +238,7 @@ class NativeEngine(_CEngine):
         from mujoco import rollout
 
         super().__init__(model, substeps, pelvis)
-        self.threads = threads or os.cpu_count() or 1
+        self.threads = threads or native_threads()
         self._datas = [mujoco.MjData(model) for _ in range(self.threads)]
         self._pool = rollout.Rollout(nthread=self.threads if self.threads > 1 else 0)
         self._inline = rollout.Rollout(nthread=0)  # small batches: thread hand-offs cost more than they save

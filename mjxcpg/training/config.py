@@ -127,6 +127,8 @@ RANGES: dict[str, Range] = {
     "controller.z0": POSITIVE,
     "controller.control_dt": POSITIVE,
     "controller.cpg_substeps": COUNT,
+    "controller.h_heading": NON_NEGATIVE,
+    "controller.max_hip_yaw": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "physics_dt": POSITIVE,
     "basis_grid": dataclasses.replace(COUNT, low=2),
     "basis_width": POSITIVE,
