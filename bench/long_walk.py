@@ -11,11 +11,12 @@ seconds (after the first 2 s):
   axis projected on the floor); y: the lateral position at the window's end (m);
 * amp z / amp x: the amplitude (half the peak-to-peak) of q1 - q2 and q5 - q6, the CPG
   outputs of eqs 4-7; period: the mean interval between upward zero crossings of q1 - q2;
+* stride: v_head times the period, the distance a gait cycle covers (two steps);
 * |a5|: the mean magnitude of the propulsive feedback; h: the mean pelvis height.
 
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 61 --seconds 100
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --controller hand --seconds 100
-    NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 --h-heading 1
+    NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 --set h_heading=1 --slope 3
 
 With ``--json FILE`` every window of every learner is also written there.
 """
@@ -31,7 +32,7 @@ import numpy as np
 
 from mjxcpg.control import cpg
 from mjxcpg.control.controller import control_step, hand_feedback
-from mjxcpg.control.walk import has_fallen, initial_cpg
+from mjxcpg.control.walk import has_fallen, initial_controller
 from mjxcpg.jaxutil import xla
 from mjxcpg.learning.learner import policy_mean_feedback
 from mjxcpg.physics.model import observe
@@ -60,13 +61,13 @@ def record_walk(sim, task, weights, feedback, steps: int):
         cpg_state, ctrl, a5, fell, height = jax.vmap(one_robot)(cpg_state, sensors, weights)
         fallen = fallen | fell
         physics = engine.step(physics, ctrl, ~fallen)
-        row = (sensors.qpos[:, :7], sensors.qvel[:, :2], cpg.output(cpg_state), a5, fallen, height)
+        row = (sensors.qpos[:, :7], sensors.qvel[:, :2], cpg.output(cpg_state.cpg), a5, fallen, height)
         return (physics, cpg_state, fallen), row
 
     @xla.jit
     def walk():
         batch = jax.tree.leaves(weights)[0].shape[0]
-        carry = (engine.init(sim.qpos0, batch), initial_cpg(batch), jnp.zeros(batch, bool))
+        carry = (engine.init(sim.qpos0, batch), initial_controller(batch), jnp.zeros(batch, bool))
         return jax.lax.scan(body, carry, None, length=steps)[1]
 
     return [np.asarray(x) for x in jax.device_get(walk())]
@@ -93,6 +94,7 @@ def windows(rows, k: int, dt: float, window_s: float, settle_s: float = 2.0) -> 
             "v_head": float(np.mean(v_head[s])), "y": float(qpos[s][-1, 1]),
             "amp_z": float(np.ptp(stepping[s]) / 2), "amp_x": float(np.ptp(propulsion[s]) / 2),
             "period": float(np.mean(np.diff(up)) * dt) if len(up) > 2 else None,
+            "stride": float(np.mean(v_head[s]) * np.mean(np.diff(up)) * dt) if len(up) > 2 else None,
             "abs_a5": float(np.mean(np.abs(a5[s]))), "height": float(np.mean(height[s]))})
     return out
 
@@ -105,12 +107,13 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=100.0)
     parser.add_argument("--window", type=float, default=10.0)
     parser.add_argument("--json", type=Path, default=None)
-    parser.add_argument("--h-heading", type=float, default=None,
-                        help="the heading reflex's gain instead of the run's (rad of hip yaw per rad)")
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="controller constants instead of the run's (ControllerParams fields)")
+    parser.add_argument("--slope", type=float, default=0.0, help="floor slope (degrees, uphill > 0)")
     args = parser.parse_args()
     spec, sim, task, state = runs.load_run(args.run)
-    if args.h_heading is not None:
-        sim = sim.rebuild(params=dataclasses.replace(sim.params, h_heading=args.h_heading))
+    changes = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
+    sim = sim.rebuild(params=dataclasses.replace(sim.params, **changes), slope_deg=args.slope)
     chosen = runs.check_learners(spec, args.learners)
     weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
     feedback = {"policy": policy_mean_feedback(task),
@@ -121,15 +124,16 @@ def main() -> None:
     for j, learner in enumerate(chosen):
         results[learner] = windows(rows, j, sim.control_dt, args.window)
         print(f"\nlearner {learner} (k_s = {spec.k_s[learner]:g}, seed {spec.seeds[learner]}), {args.controller}")
-        print("| t (s) | heading (deg) | v_x | v_head | y (m) | amp z | amp x | period (s) | abs a5 | h (m) |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("| t (s) | heading (deg) | v_x | v_head | y (m) | amp z | amp x | period (s) | stride (m) | abs a5 | h (m) |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for w in results[learner]:
             if w["fell"]:
-                print(f"| {w['t0']:.0f} | fell | | | | | | | | |")
+                print(f"| {w['t0']:.0f} | fell | | | | | | | | | |")
                 continue
             period = f"{w['period']:.3f}" if w["period"] else "-"
+            stride = f"{w['stride']:.4f}" if w["stride"] else "-"
             print(f"| {w['t0']:.0f} | {w['heading_deg']:+.1f} | {w['vx']:.4f} | {w['v_head']:.4f} | {w['y']:+.3f} "
-                  f"| {w['amp_z']:.3f} | {w['amp_x']:.3f} | {period} | {w['abs_a5']:.3f} | {w['height']:.4f} |")
+                  f"| {w['amp_z']:.3f} | {w['amp_x']:.3f} | {period} | {stride} | {w['abs_a5']:.3f} | {w['height']:.4f} |")
     if args.json:
         args.json.write_text(json.dumps({str(k): v for k, v in results.items()}, indent=1))
 

@@ -99,7 +99,7 @@ def hand_walk_states(sim, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarra
     def run(physics, cpg_state):
         return jax.lax.scan(body, (physics, cpg_state), None, length=steps)[1]
 
-    qpos, qvel, ctrl = jax.device_get(run(engine.init(sim.qpos0, 1), walk.initial_cpg(1)))
+    qpos, qvel, ctrl = jax.device_get(run(engine.init(sim.qpos0, 1), walk.initial_controller(1)))
     return np.asarray(qpos), np.asarray(qvel), np.asarray(ctrl)
 
 

@@ -175,7 +175,7 @@ def _estimated_walk(robot: str, seconds: float = 10.0):
         return (sim.engine.step(physics, ctrl), cpg_state, est), out
 
     est0 = jax.tree.map(lambda x: x[None], estimator.init_state(params, sim.layout.pelvis_height(sim.params.z0)))
-    carry = (sim.engine.init(sim.qpos0, 1), walk.initial_cpg(1), est0)
+    carry = (sim.engine.init(sim.qpos0, 1), walk.initial_controller(1), est0)
     _, out = jax.jit(lambda c: jax.lax.scan(body, c, None, length=round(seconds / dt)))(carry)
     measured, height, velocity, fell = jax.tree.map(lambda x: np.asarray(x[:, 0]), out)
     return measured, height, velocity, fell, dt

@@ -29,7 +29,7 @@ def test_hand_designed_feedback_walks_forward(engine, request):
 def test_stepping_in_place(mujoco_sim):
     params = dataclasses.replace(mujoco_sim.params, amp_x=0.0)
     run = walk.make_walk(mujoco_sim.engine, mujoco_sim.layout, params, 2500, lambda obs, k: 0.0 * k)
-    gait = walk.summarise(run(mujoco_sim.engine.init(mujoco_sim.qpos0, 1), walk.initial_cpg(1),
+    gait = walk.summarise(run(mujoco_sim.engine.init(mujoco_sim.qpos0, 1), walk.initial_controller(1),
                               jnp.zeros(1)), params.control_dt)[0]
     assert not gait.fell and abs(gait.mean_vx) < 0.01
 

@@ -1,12 +1,14 @@
 """The CPG walking controller for one robot: reflexes (eq 9), the CPG, leg targets, IK.
 
 ``control_step`` maps the robot's observation and the propulsive feedback a_5 to servo
-targets and the CPG's next state.  It knows nothing of the engine that runs the robot.
+targets and the controller's next state (``ControllerState``: the CPG's, and the slope
+reflex's integral).  It knows nothing of the engine that runs the robot.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +41,8 @@ class ControllerParams:
     hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
     h_heading: float = 0.0          # heading reflex gain (rad of hip yaw per rad of heading); 0: off
     max_hip_yaw: float = 0.3        # the heading reflex's hip yaw limit (rad), inside the joints' +-0.5
+    slope_reflex_s: float = 0.0     # the slope reflex's time constant (s); 0: off
+    max_ankle_pitch: float = 0.2    # the slope reflex's limit (rad) on its ankle pitch offset
 
     @classmethod
     def of(cls, robot: RobotDescription, **overrides) -> "ControllerParams":
@@ -47,6 +51,18 @@ class ControllerParams:
         cpg_params = dataclasses.replace(cpg.CPGParams(), tau=gait.tau, tau_adapt=gait.tau_adapt)
         return cls(**{"cpg": cpg_params, "amp_x": gait.amp_x, "amp_z": gait.amp_z, "z0": gait.z0,
                       "hand_gain": gait.hand_gain, **overrides})
+
+
+class ControllerState(NamedTuple):
+    """What the controller carries from one control period to the next."""
+
+    cpg: cpg.CPGState
+    ankle_pitch: jax.Array  # the slope reflex's offset of both ankles' pitch targets (rad)
+
+
+def init_state() -> ControllerState:
+    """The state every walk and trial starts from: the CPG's start, no ankle offset."""
+    return ControllerState(cpg=cpg.init_state(), ankle_pitch=jnp.float32(0.0))
 
 
 def reflex_feedback(params: ControllerParams, layout: Layout, obs: Observation) -> jax.Array:
@@ -87,22 +103,50 @@ def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:
     return jnp.clip(params.h_heading * obs.heading, -params.max_hip_yaw, params.max_hip_yaw)
 
 
+def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observation) -> jax.Array:
+    """The slope reflex: d(ankle pitch offset)/dt = theta_pitch / slope_reflex_s, within
+    +-max_ankle_pitch, added to both ankles' pitch targets.
+
+    The inverse kinematics keeps the soles parallel to the pelvis, so on an incline the
+    robot walks pitched with the floor (back uphill, forward downhill).  Integrating the
+    pelvis pitch into the ankles turns the soles against it until the pelvis is level and
+    the soles lie on the floor, over a few seconds (slower than a step, so the pitch of
+    each step averages out).  Not in the paper; off (the offset stays 0) by default.
+    """
+    if params.slope_reflex_s == 0.0:
+        return ankle_pitch
+    rate = obs.pitch / params.slope_reflex_s
+    return jnp.clip(ankle_pitch + params.control_dt * rate, -params.max_ankle_pitch, params.max_ankle_pitch)
+
+
 def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array,
-                  hip_yaw: jax.Array | float = 0.0) -> jax.Array:
+                  hip_yaw: jax.Array | float = 0.0, ankle_pitch: jax.Array | float = 0.0) -> jax.Array:
     """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,), with
-    both hips yawed by ``hip_yaw`` (rad; the heading reflex)."""
+    both hips yawed by ``hip_yaw`` (rad; the heading reflex) and both ankles pitched by
+    ``ankle_pitch`` (rad; the slope reflex)."""
     targets = cpg.leg_targets(q, params.x0, params.z0, params.amp_x, params.amp_z)
     left = ik.leg_joint_angles(targets.left_x, targets.left_z, layout.geometry)
     right = ik.leg_joint_angles(targets.right_x, targets.right_z, layout.geometry)
-    left, right = left.at[0].set(hip_yaw), right.at[0].set(hip_yaw)
+    left = left.at[0].set(hip_yaw).at[4].add(ankle_pitch)
+    right = right.at[0].set(hip_yaw).at[4].add(ankle_pitch)
     ctrl = jnp.asarray(layout.ctrl_home, dtype=left.dtype)
     ctrl = ctrl.at[jnp.array(layout.left_leg_ctrl)].set(left)
     return ctrl.at[jnp.array(layout.right_leg_ctrl)].set(right)
 
 
-def control_step(params: ControllerParams, layout: Layout, state: cpg.CPGState,
-                 obs: Observation, a5: jax.Array) -> tuple[cpg.CPGState, jax.Array]:
-    """One control period: reflexes and a_5 drive the CPG; its outputs become servo targets."""
+def control_step(params: ControllerParams, layout: Layout, state: ControllerState,
+                 obs: Observation, a5: jax.Array,
+                 propulsion_offset: jax.Array | float = 0.0) -> tuple[ControllerState, jax.Array]:
+    """One control period: reflexes and a_5 drive the CPG; its outputs become servo targets.
+
+    ``propulsion_offset`` offsets the target of (q5 - q6) in eqs (6)-(7), not the CPG
+    itself (the return map's perturbation): p_x^l = X_0 - A_x (q5 - q6 + offset) and
+    p_x^r = X_0 + A_x (q5 - q6 + offset), so the legs' fore-aft tip offset (right minus
+    left) changes by 2 A_x offset.
+    """
     feedback = cpg.feedback_vector(reflex_feedback(params, layout, obs), a5)
-    state = cpg.integrate(params.cpg, state, feedback, params.control_dt, params.cpg_substeps)
-    return state, joint_targets(params, layout, cpg.output(state), heading_reflex(params, obs))
+    cpg_state = cpg.integrate(params.cpg, state.cpg, feedback, params.control_dt, params.cpg_substeps)
+    ankle_pitch = slope_reflex(params, state.ankle_pitch, obs)
+    q = cpg.output(cpg_state).at[4].add(propulsion_offset)
+    ctrl = joint_targets(params, layout, q, heading_reflex(params, obs), ankle_pitch)
+    return ControllerState(cpg_state, ankle_pitch), ctrl

@@ -10,8 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg.control import cpg
-from mjxcpg.control.controller import ControllerParams, after_hand_start, control_step
+from mjxcpg.control.controller import ControllerParams, ControllerState, after_hand_start, control_step, init_state
 from mjxcpg.jaxutil import xla
 from mjxcpg.physics.engines import Engine
 from mjxcpg.physics.model import Layout, Observation, observe
@@ -42,34 +41,34 @@ class Trace(NamedTuple):
 
 def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: int,
               feedback: FeedbackFn, record_qpos: bool = False, hand_steps: int = 0) -> Callable:
-    """A jitted ``walk(physics, cpg_state, feedback_params) -> Trace`` over ``steps`` periods.
+    """A jitted ``walk(physics, controller_state, feedback_params) -> Trace`` over ``steps`` periods.
 
     ``feedback(obs, feedback_params)`` returns a_5 for one robot; it is ``vmap``-ed.
     ``record_qpos`` also keeps each period's full configuration (e.g. to render the gait).
     ``hand_steps`` > 0: the hand-designed feedback acts for the first ``hand_steps`` periods,
     as at the start of a learning trial, and ``feedback`` from then on.
     """
-    def one_robot_control(cpg_state, sensors, fb_params, step):
+    def one_robot_control(controller_state, sensors, fb_params, step):
         obs = observe(layout, sensors)
         a5 = after_hand_start(params, obs, feedback(obs, fb_params), step, hand_steps)
-        cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
-        return cpg_state, ctrl, obs, a5
+        controller_state, ctrl = control_step(params, layout, controller_state, obs, a5)
+        return controller_state, ctrl, obs, a5
 
     def body(carry, step):
-        physics, cpg_state, fallen, fb_params = carry
+        physics, controller_state, fallen, fb_params = carry
         sensors = engine.sensors(physics)
-        cpg_state, ctrl, obs, a5 = jax.vmap(one_robot_control, (0, 0, 0, None))(cpg_state, sensors, fb_params,
+        controller_state, ctrl, obs, a5 = jax.vmap(one_robot_control, (0, 0, 0, None))(controller_state, sensors, fb_params,
                                                                                  step)
         fallen = fallen | jax.vmap(lambda o: has_fallen(layout, o))(obs)
         physics = engine.step(physics, ctrl)
         trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
                       obs.roll, a5, fallen, sensors.qpos if record_qpos else None)
-        return (physics, cpg_state, fallen, fb_params), trace
+        return (physics, controller_state, fallen, fb_params), trace
 
     @xla.jit
-    def walk(physics, cpg_state, fb_params):
-        batch = cpg_state.z.shape[0]
-        carry = (physics, cpg_state, jnp.zeros(batch, bool), fb_params)
+    def walk(physics, controller_state, fb_params):
+        batch = controller_state.ankle_pitch.shape[0]
+        carry = (physics, controller_state, jnp.zeros(batch, bool), fb_params)
         _, trace = jax.lax.scan(body, carry, jnp.arange(steps))
         return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
 
@@ -85,7 +84,7 @@ def walk_from_standing(sim, feedback: FeedbackFn, fb_params, seconds: float,
     batch = jax.tree.leaves(fb_params)[0].shape[0]
     run = make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt), feedback,
                     record_qpos, round(hand_seconds / sim.control_dt))
-    return run(sim.engine.init(sim.qpos0, batch), initial_cpg(batch), fb_params)
+    return run(sim.engine.init(sim.qpos0, batch), initial_controller(batch), fb_params)
 
 
 @dataclasses.dataclass
@@ -133,6 +132,6 @@ def sway_period(roll: np.ndarray, dt: float) -> float | None:
     return float(np.mean(np.diff(crossings)) * dt) if len(crossings) > 2 else None
 
 
-def initial_cpg(batch: int) -> cpg.CPGState:
-    state = cpg.init_state()
-    return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)
+def initial_controller(batch: int) -> ControllerState:
+    """The controller's starting state (``controller.init_state``) for ``batch`` robots."""
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), init_state())

@@ -11,8 +11,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
-from mjxcpg.control import cpg, ik
-from mjxcpg.control.controller import after_hand_start, control_step, heading_reflex, joint_targets
+from mjxcpg.control import ik
+from mjxcpg.control.controller import ControllerState, after_hand_start, control_step, init_state
 from mjxcpg.control.sim import Simulation
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.evaluation.protocol import EvalParams, Probe, Protocol, advance_probe, init_probe, probe_drive, probe_finished
@@ -51,16 +51,6 @@ def step_length(layout: Layout, joints: LegJoints, qpos: jax.Array, obs: Observa
     return jnp.cos(obs.pitch) * dx - jnp.sin(obs.pitch) * dz_down
 
 
-def perturbed_targets(task: Task, q: jax.Array, offset: jax.Array, obs: Observation) -> jax.Array:
-    """Servo targets with the target of (q5 - q6) offset by ``offset`` (eqs 6-7), the heading
-    reflex as in ``control_step``.
-
-    p_x^l = X_0 - A_x (q5 - q6 + offset), p_x^r = X_0 + A_x (q5 - q6 + offset): the legs'
-    fore-aft tip offset (right minus left) changes by 2 A_x offset, the CPG itself is untouched.
-    """
-    return joint_targets(task.controller, task.layout, q.at[4].add(offset), heading_reflex(task.controller, obs))
-
-
 class TouchdownLog(NamedTuple):
     """Left touchdowns of one robot: count, then per touchdown its control period, the step
     length, the pelvis' forward position and its heading (yaw, rad)."""
@@ -76,7 +66,7 @@ class EvalState(NamedTuple):
     """A batch of robots under one protocol; ``step`` is the shared control period."""
 
     physics: Any
-    cpg: cpg.CPGState
+    controller: ControllerState
     step: jax.Array
     fallen: jax.Array
     fall_step: jax.Array
@@ -92,10 +82,9 @@ def init_eval(sim: Simulation, protocol: Protocol, keys: jax.Array, pushes: jax.
     batch = keys.shape[0]
     pushes = jnp.zeros((batch, 3), jnp.float32) if pushes is None else jnp.asarray(pushes, jnp.float32)
     c = protocol.capacity
-    state = cpg.init_state()
     return EvalState(
         physics=sim.engine.init(sim.qpos0, batch),
-        cpg=jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state),
+        controller=jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), init_state()),
         step=jnp.int32(0), fallen=jnp.zeros(batch, bool), fall_step=jnp.full(batch, -1, jnp.int32),
         skipped=jnp.zeros(batch, bool) if skipped is None else jnp.asarray(skipped, bool),
         unloaded_steps=jnp.zeros(batch, jnp.int32),
@@ -119,7 +108,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
     layout, engine = sim.layout, sim.engine
     pushing = protocol.mode == "push"
 
-    def one_robot(t, cpg_state, sensors, weights, unloaded, log, probe, active):
+    def one_robot(t, controller_state, sensors, weights, unloaded, log, probe, active):
         obs = observe(layout, sensors)
         fell = has_fallen(layout, obs)
         # Left touchdown: the sole loaded again after a long enough unloaded spell.
@@ -140,15 +129,14 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
         probe = advance_probe(protocol, probe, t, touchdown, index)
         offset, force = probe_drive(protocol, probe, t)
         a5 = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)
-        cpg_state, _ = control_step(task.controller, layout, cpg_state, obs, a5)
-        ctrl = perturbed_targets(task, cpg.output(cpg_state), offset, obs)
-        return cpg_state, ctrl, force, fell, unloaded, log, probe
+        controller_state, ctrl = control_step(task.controller, layout, controller_state, obs, a5, offset)
+        return controller_state, ctrl, force, fell, unloaded, log, probe
 
     def body(state: EvalState, weights):
         active = ~is_done(protocol, state)
-        cpg_state, ctrl, force, fell, unloaded, log, probe = jax.vmap(
+        controller_state, ctrl, force, fell, unloaded, log, probe = jax.vmap(
             one_robot, in_axes=(None, 0, 0, 0, 0, 0, 0, 0))(
-            state.step, state.cpg, engine.sensors(state.physics), weights, state.unloaded_steps,
+            state.step, state.controller, engine.sensors(state.physics), weights, state.unloaded_steps,
             state.log, state.probe, active)
         fell = active & fell
         physics = engine.step(state.physics, ctrl, active & ~fell,
@@ -158,7 +146,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
                 lambda n, o: jnp.where(active.reshape(active.shape + (1,) * (n.ndim - 1)), n, o), new, old)
 
         return EvalState(
-            physics=physics, cpg=keep(cpg_state, state.cpg), step=state.step + 1,
+            physics=physics, controller=keep(controller_state, state.controller), step=state.step + 1,
             fallen=state.fallen | fell, fall_step=jnp.where(fell, state.step, state.fall_step),
             skipped=state.skipped, unloaded_steps=keep(unloaded, state.unloaded_steps),
             probe=keep(probe, state.probe), log=keep(log, state.log))

@@ -34,8 +34,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjxcpg.control import cpg, estimator
-from mjxcpg.control.controller import ControllerParams, control_step, hand_feedback, joint_targets
+from mjxcpg.control import estimator
+from mjxcpg.control.controller import ControllerParams, ControllerState, control_step, hand_feedback, init_state, joint_targets
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.jaxutil.pytree import tree_where
 from mjxcpg.learning import actor_critic as ac
@@ -97,7 +97,7 @@ class LearnerState(NamedTuple):
     k_s: jax.Array
     key: jax.Array                # the learner's random stream (``period_draws``)
     period: jax.Array             # control periods since the run started
-    cpg: cpg.CPGState
+    controller: ControllerState
     weights: ac.Weights
     traces: ac.Traces
     previous_basis: jax.Array     # b(x(t - dt)); V(t - dt) is re-evaluated with current weights
@@ -169,7 +169,7 @@ def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
     k = task.basis.centers.shape[0]
     n = task.trial.max_trials
     return LearnerState(
-        k_s=jnp.float32(k_s), key=key, period=jnp.int32(0), cpg=cpg.init_state(),
+        k_s=jnp.float32(k_s), key=key, period=jnp.int32(0), controller=init_state(),
         weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k),
         previous_basis=jnp.zeros(k, jnp.float32), has_previous=jnp.bool_(False),
         noise=jnp.float32(0), kept=ac.init_weights(task.learner, k), book=Bookkeeping(
@@ -238,7 +238,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     previous_b = jnp.where(state.has_previous, state.previous_basis, 0.0)  # b_{t-1}, 0 at the first action
     traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt,
                                                      state.noise, previous_b), state.traces)
-    cpg_state, ctrl = control_step(task.controller, task.layout, state.cpg, obs, a5)
+    controller_state, ctrl = control_step(task.controller, task.layout, state.controller, obs, a5)
 
     trial_return = book.trial_return + jnp.where(
         acting, jnp.where(fell, task.trial.fall_reward, r * task.dt), 0.0)
@@ -277,7 +277,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     weights = tree_where(stops, kept, weights)
     state = LearnerState(
         k_s=state.k_s, key=state.key, period=state.period + 1,
-        cpg=tree_where(ended, cpg.init_state(), cpg_state),
+        controller=tree_where(ended, init_state(), controller_state),
         weights=weights,
         traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
         previous_basis=b, has_previous=acting & ~ended,
