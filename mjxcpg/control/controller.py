@@ -39,8 +39,8 @@ class ControllerParams:
     control_dt: float = 0.008       # control period (s)
     cpg_substeps: int = 8           # Euler steps of the CPG per control period
     hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
-    h_heading: float = 0.0          # heading reflex gain (rad of hip yaw per rad of heading); 0: off
-    max_hip_yaw: float = 0.3        # the heading reflex's hip yaw limit (rad), inside the joints' +-0.5
+    h_heading: float = 0.0          # heading reflex gain (rad of turn per step per rad of heading); 0: off
+    max_hip_yaw: float = 0.3        # the heading reflex's turn limit (rad per step), inside the joints' +-0.5
     slope_reflex_s: float = 0.0     # the slope reflex's time constant (s); 0: off
     max_ankle_pitch: float = 0.2    # the slope reflex's limit (rad) on its ankle pitch offset
 
@@ -94,13 +94,13 @@ def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, 
 
 
 def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:
-    """The hip yaw of both legs that turns the robot back to the world's +x: h_heading times
-    its heading (the pelvis' yaw), within +-max_hip_yaw.
+    """The heading reflex: the turn of each step, -h_heading times the heading (the pelvis'
+    yaw), within +-max_hip_yaw (rad; ``joint_targets`` makes it a turn).
 
-    A positive hip yaw turns the pelvis to the right about the stance foot, against a
-    heading to the left.  Not in the paper, whose robot walks a few metres; 0 by default.
+    Not in the paper, whose robot walks a few metres: with no sense of its heading, a gait
+    whose steps turn a little accumulates it without bound.  0 by default.
     """
-    return jnp.clip(params.h_heading * obs.heading, -params.max_hip_yaw, params.max_hip_yaw)
+    return jnp.clip(-params.h_heading * obs.heading, -params.max_hip_yaw, params.max_hip_yaw)
 
 
 def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observation) -> jax.Array:
@@ -120,15 +120,21 @@ def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observat
 
 
 def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array,
-                  hip_yaw: jax.Array | float = 0.0, ankle_pitch: jax.Array | float = 0.0) -> jax.Array:
-    """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,), with
-    both hips yawed by ``hip_yaw`` (rad; the heading reflex) and both ankles pitched by
-    ``ankle_pitch`` (rad; the slope reflex)."""
+                  turn: jax.Array | float = 0.0, ankle_pitch: jax.Array | float = 0.0) -> jax.Array:
+    """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,), a turn
+    of ``turn`` (rad) per step, and both ankles pitched by ``ankle_pitch`` (rad; the slope reflex).
+
+    A turn yaws each leg's hip by ``turn`` times its lift (q1 - q2 for the left leg, q2 - q1
+    for the right, within [0, 1]): the swing foot lands yawed by ``turn``, and as it takes
+    the weight and its lift returns to 0 the pelvis yaws after it.  The same yaw of both
+    hips at once would turn the pelvis only while it changes.
+    """
     targets = cpg.leg_targets(q, params.x0, params.z0, params.amp_x, params.amp_z)
     left = ik.leg_joint_angles(targets.left_x, targets.left_z, layout.geometry)
     right = ik.leg_joint_angles(targets.right_x, targets.right_z, layout.geometry)
-    left = left.at[0].set(hip_yaw).at[4].add(ankle_pitch)
-    right = right.at[0].set(hip_yaw).at[4].add(ankle_pitch)
+    stepping = q[0] - q[1]
+    left = left.at[0].set(turn * jnp.clip(stepping, 0.0, 1.0)).at[4].add(ankle_pitch)
+    right = right.at[0].set(turn * jnp.clip(-stepping, 0.0, 1.0)).at[4].add(ankle_pitch)
     ctrl = jnp.asarray(layout.ctrl_home, dtype=left.dtype)
     ctrl = ctrl.at[jnp.array(layout.left_leg_ctrl)].set(left)
     return ctrl.at[jnp.array(layout.right_leg_ctrl)].set(right)

@@ -129,6 +129,8 @@ RANGES: dict[str, Range] = {
     "controller.cpg_substeps": COUNT,
     "controller.h_heading": NON_NEGATIVE,
     "controller.max_hip_yaw": dataclasses.replace(NON_NEGATIVE, high=0.5),
+    "controller.slope_reflex_s": NON_NEGATIVE,
+    "controller.max_ankle_pitch": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "physics_dt": POSITIVE,
     "basis_grid": dataclasses.replace(COUNT, low=2),
     "basis_width": POSITIVE,
@@ -250,7 +252,9 @@ def spec_to_dict(spec: RunSpec) -> dict:
 # order they were added, with the value that a run recorded without it had: such a run's
 # record is the spec without that key and every later one.
 ADDED_KEYS = {("learner", "unit_slope"): False, ("platform",): robots.DEFAULT_PLATFORM,
-              ("learner", "fall_impulse"): False, ("learner", "mean_step_sigma_power"): 0.0}
+              ("learner", "fall_impulse"): False, ("learner", "mean_step_sigma_power"): 0.0,
+              ("controller", "h_heading"): 0.0, ("controller", "max_hip_yaw"): 0.3,
+              ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2}
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
