@@ -99,6 +99,31 @@ def windows(rows, k: int, dt: float, window_s: float, settle_s: float = 2.0) -> 
     return out
 
 
+LAST_WINDOWS = 4  # "the end of the walk": its last four windows (the last 40 s of 100 s)
+
+
+def overview(run: Path, spec, results: dict) -> list[str]:
+    """Over the policies walked: falls, those whose end is below 80% of their speed in the
+    run's own 20 s walk (summary.json), the largest heading, the k_s = 10 means."""
+    trial_vx = {r["learner"]: r["mean_vx"] for r in json.loads((run / "summary.json").read_text())["learners"]}
+    fell = [k for k, ws in results.items() if any(w["fell"] for w in ws)]
+    walked = {k: ws for k, ws in results.items() if k not in fell}
+    end_vx = {k: float(np.mean([w["vx"] for w in ws[-LAST_WINDOWS:]])) for k, ws in walked.items()}
+    slow = [k for k in walked if spec.k_s[k] >= 1 and end_vx[k] < 0.8 * trial_vx[k]]
+    largest = {k: max(abs(w["heading_deg"]) for w in ws) for k, ws in walked.items()}
+    top = [k for k in walked if spec.k_s[k] == max(spec.k_s)]
+    lines = [f"fell: {len(fell)} of {len(results)} {fell}",
+             f"k_s >= 1 below 80% of the 20 s walk's speed over the last {LAST_WINDOWS} windows: "
+             f"{len(slow)} of {sum(spec.k_s[k] >= 1 for k in results)} {slow}"]
+    if largest:
+        lines.append(f"largest |heading| (deg): median {np.median(list(largest.values())):.1f}, "
+                     f"max {max(largest.values()):.1f}")
+    if top:
+        lines.append(f"k_s = {max(spec.k_s):g}: mean v_x at the end {np.mean([end_vx[k] for k in top]):.4f} m/s, "
+                     f"in the 20 s walk {np.mean([trial_vx[k] for k in top]):.4f}")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path)
@@ -134,6 +159,8 @@ def main() -> None:
             stride = f"{w['stride']:.4f}" if w["stride"] else "-"
             print(f"| {w['t0']:.0f} | {w['heading_deg']:+.1f} | {w['vx']:.4f} | {w['v_head']:.4f} | {w['y']:+.3f} "
                   f"| {w['amp_z']:.3f} | {w['amp_x']:.3f} | {period} | {stride} | {w['abs_a5']:.3f} | {w['height']:.4f} |")
+    if (args.run / "summary.json").is_file() and args.controller == "policy":
+        print("\n" + "\n".join(overview(args.run, spec, results)))
     if args.json:
         args.json.write_text(json.dumps({str(k): v for k, v in results.items()}, indent=1))
 
