@@ -164,9 +164,15 @@ def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
 
 def summarise_slopes(result: dict) -> dict:
     walked = [r["slopes"] for r in _succeeded(result) if r["slopes"]["uphill_deg"] is not None]
+    propelled = [r["slopes"] for r in _succeeded(result) if r["k_s"] >= 1 and r["slopes"]["uphill_deg"] is not None]
     return dict(
         slope_uphill_median=float(np.median([s["uphill_deg"] for s in walked])) if walked else None,
         slope_downhill_median=float(np.median([s["downhill_deg"] for s in walked])) if walked else None,
+        # k_s >= 1: the policies that learned a propulsive feedback, as Fig 8 is judged
+        propelled_slopes_median=[float(np.median([s["uphill_deg"] for s in propelled])),
+                                 float(np.median([s["downhill_deg"] for s in propelled]))] if propelled else None,
+        propelled_slopes_widest=[float(max(s["uphill_deg"] for s in propelled)),
+                                 float(min(s["downhill_deg"] for s in propelled))] if propelled else None,
         paper_slopes_deg=list(PAPER_SLOPES_DEG))
 
 
@@ -180,7 +186,10 @@ def slopes_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
              "without a fall; the range is contiguous from 0. The paper: "
              f"{PAPER_SLOPES_DEG[0]:+g} to {PAPER_SLOPES_DEG[1]:+g} degrees.", "",
              f"Median over the successful policies that walk on level ground: "
-             f"{_fmt(up, '+.0f')} to {_fmt(down, '+.0f')} degrees.", "",
+             f"{_fmt(up, '+.0f')} to {_fmt(down, '+.0f')} degrees."
+             + (" Over the k_s >= 1 ones: median {:+g} to {:+g}, steepest {:+g} and {:+g}.".format(
+                 *summary["propelled_slopes_median"], *summary["propelled_slopes_widest"])
+                if summary.get("propelled_slopes_median") else ""), "",
              "| learner | k_s | learned | uphill (deg) | downhill (deg) | paper |", "|---|---|---|---|---|---|"]
     for r in rows:
         s = r["slopes"]

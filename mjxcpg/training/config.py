@@ -249,28 +249,30 @@ def spec_to_dict(spec: RunSpec) -> dict:
 
 
 # Keys added to the spec after runs had been recorded (each by its path of keys), in the
-# order they were added, with the value that a run recorded without it had: such a run's
-# record is the spec without that key and every later one.
-ADDED_KEYS = {("learner", "unit_slope"): False, ("platform",): robots.DEFAULT_PLATFORM,
-              ("learner", "fall_impulse"): False, ("learner", "mean_step_sigma_power"): 0.0,
-              ("controller", "h_heading"): 0.0, ("controller", "max_hip_yaw"): 0.3,
-              ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2}
+# order they were added, those added together in one group, with the value that a run
+# recorded without them had: such a run's record is the spec without that group and every
+# later one.
+ADDED_KEYS: tuple[dict[tuple[str, ...], Any], ...] = (
+    {("learner", "unit_slope"): False}, {("platform",): robots.DEFAULT_PLATFORM},
+    {("learner", "fall_impulse"): False}, {("learner", "mean_step_sigma_power"): 0.0},
+    {("controller", "h_heading"): 0.0, ("controller", "max_hip_yaw"): 0.3,
+     ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2})
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
     """``spec`` as each earlier version of the code recorded it, newest first, as far back
     as it could have recorded it (every key added since at its old value)."""
-    added = list(ADDED_KEYS.items())
     earlier = []
-    for first_missing in reversed(range(len(added))):
+    for first_missing in reversed(range(len(ADDED_KEYS))):
         data = spec_to_dict(spec)
-        for path, value in added[first_missing:]:
-            table = data
-            for key in path[:-1]:
-                table = table[key]
-            if table[path[-1]] != value:
-                return earlier
-            del table[path[-1]]
+        for group in ADDED_KEYS[first_missing:]:
+            for path, value in group.items():
+                table = data
+                for key in path[:-1]:
+                    table = table[key]
+                if table[path[-1]] != value:
+                    return earlier
+                del table[path[-1]]
         earlier.append(data)
     return earlier
 
