@@ -47,7 +47,7 @@ def test_a_turn_yaws_the_lifted_leg_by_its_lift(sim, stepping, left_share, right
 
 
 def test_heading_reflex_turns_against_the_heading_within_its_limit():
-    params = ControllerParams(h_heading=0.6, max_hip_yaw=0.3)
+    params = ControllerParams(h_heading=0.6, max_turn=0.3)
     assert float(heading_reflex(params, observation(heading=jnp.float32(0.2)))) == pytest.approx(-0.12)
     assert float(heading_reflex(params, observation(heading=jnp.float32(-1.0)))) == pytest.approx(0.3)
     assert float(heading_reflex(ControllerParams(), observation(heading=jnp.float32(0.5)))) == 0.0

@@ -106,7 +106,7 @@ def fingerprint_by_hand(data: dict) -> np.ndarray:
     return np.frombuffer(hashlib.sha256(json.dumps(data, sort_keys=True).encode()).digest(), np.uint8)
 
 
-REFLEX_KEYS = ("h_heading", "max_hip_yaw", "slope_reflex_s", "max_ankle_pitch")
+REFLEX_KEYS = ("h_heading", "max_turn", "slope_reflex_s", "max_ankle_pitch")
 
 
 def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, tmp_path):

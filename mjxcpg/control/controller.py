@@ -40,7 +40,7 @@ class ControllerParams:
     cpg_substeps: int = 8           # Euler steps of the CPG per control period
     hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
     h_heading: float = 0.0          # heading reflex gain (rad of turn per step per rad of heading); 0: off
-    max_hip_yaw: float = 0.3        # the heading reflex's turn limit (rad per step), inside the joints' +-0.5
+    max_turn: float = 0.3           # the heading reflex's turn limit (rad per step), inside the hips' +-0.5
     slope_reflex_s: float = 0.0     # the slope reflex's time constant (s); 0: off
     max_ankle_pitch: float = 0.2    # the slope reflex's limit (rad) on its ankle pitch offset
 
@@ -95,12 +95,12 @@ def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, 
 
 def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:
     """The heading reflex: the turn of each step, -h_heading times the heading (the pelvis'
-    yaw), within +-max_hip_yaw (rad; ``joint_targets`` makes it a turn).
+    yaw), within +-max_turn (rad; ``joint_targets`` makes it a turn).
 
     Not in the paper, whose robot walks a few metres: with no sense of its heading, a gait
     whose steps turn a little accumulates it without bound.  0 by default.
     """
-    return jnp.clip(-params.h_heading * obs.heading, -params.max_hip_yaw, params.max_hip_yaw)
+    return jnp.clip(-params.h_heading * obs.heading, -params.max_turn, params.max_turn)
 
 
 def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observation) -> jax.Array:
@@ -111,7 +111,8 @@ def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observat
     robot walks pitched with the floor (back uphill, forward downhill).  Integrating the
     pelvis pitch into the ankles turns the soles against it until the pelvis is level and
     the soles lie on the floor, over a few seconds (slower than a step, so the pitch of
-    each step averages out).  Not in the paper; off (the offset stays 0) by default.
+    each step averages out).  Not in the paper; off (the offset stays 0) by default: on the
+    hand-designed gait it widens the uphill range but narrows the downhill one.
     """
     if params.slope_reflex_s == 0.0:
         return ankle_pitch

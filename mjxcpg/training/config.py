@@ -128,7 +128,7 @@ RANGES: dict[str, Range] = {
     "controller.control_dt": POSITIVE,
     "controller.cpg_substeps": COUNT,
     "controller.h_heading": NON_NEGATIVE,
-    "controller.max_hip_yaw": dataclasses.replace(NON_NEGATIVE, high=0.5),
+    "controller.max_turn": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "controller.slope_reflex_s": NON_NEGATIVE,
     "controller.max_ankle_pitch": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "physics_dt": POSITIVE,
@@ -255,7 +255,7 @@ def spec_to_dict(spec: RunSpec) -> dict:
 ADDED_KEYS: tuple[dict[tuple[str, ...], Any], ...] = (
     {("learner", "unit_slope"): False}, {("platform",): robots.DEFAULT_PLATFORM},
     {("learner", "fall_impulse"): False}, {("learner", "mean_step_sigma_power"): 0.0},
-    {("controller", "h_heading"): 0.0, ("controller", "max_hip_yaw"): 0.3,
+    {("controller", "h_heading"): 0.0, ("controller", "max_turn"): 0.3,
      ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2})
 
 
