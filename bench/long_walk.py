@@ -39,29 +39,24 @@ from mjxcpg.physics.model import observe
 from mjxcpg.training import runs
 
 
-def yaw_of(quat: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of the wxyz quaternion(s) on the last axis: rotation about the world's z."""
-    w, x, y, z = (quat[..., k] for k in range(4))
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
 def record_walk(sim, task, weights, feedback, steps: int):
-    """Per control period and robot: free-joint qpos (7), qvel (2), CPG outputs (6), a_5, fallen."""
+    """Per control period and robot: free-joint qpos (7), qvel (2), heading, CPG outputs (6),
+    a_5, fallen, pelvis height."""
     layout, params, engine = sim.layout, sim.params, sim.engine
 
     def one_robot(cpg_state, sensors, w):
         obs = observe(layout, sensors)
         a5 = feedback(obs, w)
         cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
-        return cpg_state, ctrl, a5, has_fallen(layout, obs), obs.height
+        return cpg_state, ctrl, a5, has_fallen(layout, obs), obs.height, obs.heading
 
     def body(carry, _):
         physics, cpg_state, fallen = carry
         sensors = engine.sensors(physics)
-        cpg_state, ctrl, a5, fell, height = jax.vmap(one_robot)(cpg_state, sensors, weights)
+        cpg_state, ctrl, a5, fell, height, heading = jax.vmap(one_robot)(cpg_state, sensors, weights)
         fallen = fallen | fell
         physics = engine.step(physics, ctrl, ~fallen)
-        row = (sensors.qpos[:, :7], sensors.qvel[:, :2], cpg.output(cpg_state.cpg), a5, fallen, height)
+        row = (sensors.qpos[:, :7], sensors.qvel[:, :2], heading, cpg.output(cpg_state.cpg), a5, fallen, height)
         return (physics, cpg_state, fallen), row
 
     @xla.jit
@@ -74,8 +69,8 @@ def record_walk(sim, task, weights, feedback, steps: int):
 
 
 def windows(rows, k: int, dt: float, window_s: float, settle_s: float = 2.0) -> list[dict]:
-    qpos, qvel, q, a5, fallen, height = (r[:, k] for r in rows)
-    yaw = np.unwrap(yaw_of(qpos[:, 3:7]))
+    qpos, qvel, heading_rad, q, a5, fallen, height = (r[:, k] for r in rows)
+    yaw = np.unwrap(heading_rad)
     heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
     v_head = np.sum(qvel * heading, axis=1)
     stepping, propulsion = q[:, 0] - q[:, 1], q[:, 4] - q[:, 5]

@@ -93,11 +93,11 @@ def return_map_results(state: EvalState, protocol: Protocol, dt: float) -> list[
         half = protocol.fixed_point_steps // 2
         first_half_vx = _cycles(log, k, first, half, dt)[0]
         last = first + protocol.fixed_point_steps  # the touchdown that ends the unperturbed cycles
+        all_logged = min(int(log.count[k]), log.step.shape[1]) > last
         last_half_vx = _cycles(log, k, first + half, protocol.fixed_point_steps - half, dt)[0] \
-            if int(log.count[k]) > last else float("nan")
+            if all_logged else float("nan")
         drift, largest = _heading_drift(log, k, first, protocol.fixed_point_steps)
-        unperturbed_done = min(int(log.count[k]), log.step.shape[1]) > last and (
-            not state.fallen[k] or state.fall_step[k] > log.step[k, last])
+        unperturbed_done = all_logged and (not state.fallen[k] or state.fall_step[k] > log.step[k, last])
         pairs = [(float(log.length[k, i]), float(log.length[k, i + 1]), float(probe.offsets[k, j]))
                  for j, i in enumerate(probe.perturbed_touchdown[k])
                  if i >= 0 and i + 1 < min(int(log.count[k]), protocol.capacity)]

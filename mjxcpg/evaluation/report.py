@@ -163,8 +163,9 @@ def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
 # ---------------------------------------------------------------- slopes
 
 def summarise_slopes(result: dict) -> dict:
-    walked = [r["slopes"] for r in _succeeded(result) if r["slopes"]["uphill_deg"] is not None]
-    propelled = [r["slopes"] for r in _succeeded(result) if r["k_s"] >= 1 and r["slopes"]["uphill_deg"] is not None]
+    walking = [r for r in _succeeded(result) if r["slopes"]["uphill_deg"] is not None]
+    walked = [r["slopes"] for r in walking]
+    propelled = [r["slopes"] for r in walking if r["k_s"] >= 1]
     return dict(
         slope_uphill_median=float(np.median([s["uphill_deg"] for s in walked])) if walked else None,
         slope_downhill_median=float(np.median([s["downhill_deg"] for s in walked])) if walked else None,
