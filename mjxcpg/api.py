@@ -30,7 +30,7 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
           checkpoint_every_s: float = runs.CHECKPOINT_EVERY_S) -> dict | None:
     """Run the learners of ``config`` (a config's name, a .toml/.json path or a ``RunSpec``)
     in lockstep until each has met the success criterion or used its budget, into the run
-    directory ``out`` (checkpoints, TensorBoard events, reports: README, "Learning").
+    directory ``out`` (checkpoints, TensorBoard events, reports: docs/usage.md).
 
     ``out`` is locked for the run (``runs.locked``); ``allow_other_code`` lets ``resume``
     continue a run that other code made, and records that it did.  A checkpoint is written
