@@ -30,7 +30,7 @@ def main() -> None:
         "a_max = 3": lambda obs, k: policy.feedback_action(k * obs.gyro[0], 3.0, 3.0),
     }
     gaits = {name: walk.summarise(walk.walk_from_standing(sim, feedback, jnp.array(GAINS), 20.0),
-                                  sim.control_dt)
+                                  sim.control_dt, sim.layout.weight)
              for name, feedback in forms.items()}
     header = ["| feedback | " + " | ".join(f"K = {k:g}" for k in GAINS) + " |", "|---|" + "---|" * len(GAINS)]
     for title, cell in (("20 s velocity (m/s)", lambda g: f"{g.mean_vx:.3f}"),

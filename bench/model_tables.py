@@ -44,7 +44,7 @@ def walks(h_vsr: float, sign: float, amp_x: float, gains,
     sim = make_simulation("native", params=params)
     trace = walk.walk_from_standing(sim, lambda obs, k: roll_rate_feedback(obs, k),
                                     jnp.array(gains), SECONDS)
-    return dict(zip(gains, walk.summarise(trace, sim.control_dt)))
+    return dict(zip(gains, walk.summarise(trace, sim.control_dt, sim.layout.weight)))
 
 
 def cell(s: walk.GaitSummary | None, stepping_in_place: bool = False) -> str:

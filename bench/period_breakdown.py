@@ -74,6 +74,7 @@ def breakdown(batch: int, steps: int, repeats: int) -> dict:
     after, transitions = jax.block_until_ready(record(state, initial))
     physics = np.asarray(transitions.physics.physics, np.float32)     # (steps, batch, nstate)
     sensordata = np.asarray(transitions.physics.sensordata, np.float32)
+    work = np.asarray(transitions.physics.positive_work, np.float32)
     ctrl = np.asarray(transitions.ctrl, np.float32)
     active = np.ones(batch, bool)
 
@@ -89,7 +90,7 @@ def breakdown(batch: int, steps: int, repeats: int) -> dict:
 
     def host_steps():
         for t in range(steps):
-            engine._host_step(physics[t].copy(), sensordata[t].copy(), ctrl[t], active)
+            engine._host_step(physics[t].copy(), sensordata[t].copy(), work[t].copy(), ctrl[t], active)
 
     callback_sim = dataclasses.replace(sim, engine=CallbackNative(sim.model, substeps))
     first = jax.tree.map(lambda x: x[0], transitions.physics)

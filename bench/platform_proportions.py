@@ -74,7 +74,8 @@ def walk_platform(robot) -> list[walk.GaitSummary]:
     robots.PLATFORMS[robot.name] = robot
     sim = make_simulation("native", platform=robot.name)
     gains = jnp.array(GAINS) * sim.params.hand_gain
-    return walk.summarise(walk.walk_from_standing(sim, roll_rate_feedback, gains, 20.0), sim.control_dt)
+    return walk.summarise(walk.walk_from_standing(sim, roll_rate_feedback, gains, 20.0), sim.control_dt,
+                          sim.layout.weight)
 
 
 def main() -> None:

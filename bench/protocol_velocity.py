@@ -48,7 +48,7 @@ def main() -> None:
             rho = stats.spearman(groups, [means[k].value for k in groups])
             print(f"\nSpearman rho {rho:.2f}; slope {stats.slope_interval(k_s, v).format('.4f')} m/s per unit k_s")
         zero = walk.summarise(walk.walk_from_standing(sim, lambda obs, k: 0.0 * k, jnp.zeros(1), 20.0,
-                                                     hand_seconds=start), sim.control_dt)[0]
+                                                     hand_seconds=start), sim.control_dt, sim.layout.weight)[0]
         print(f"a_5 = 0 (control c), the same walk: {zero.mean_vx:.3f} m/s" + (", fell" if zero.fell else ""))
 
 

@@ -45,7 +45,7 @@ def gait(physics_dt: float, control_dt: float, seconds: float = 20.0) -> list[di
     """The hand-designed controller at each gain of ``HAND_GAINS``, one batch."""
     sim = make_simulation("native", params=controller_for(control_dt), physics_dt=physics_dt)
     trace = walk.walk_from_standing(sim, roll_rate_feedback, jnp.array(HAND_GAINS), seconds)
-    return [{"gain": k, **g.as_dict()} for k, g in zip(HAND_GAINS, walk.summarise(trace, control_dt))]
+    return [{"gain": k, **g.as_dict()} for k, g in zip(HAND_GAINS, walk.summarise(trace, control_dt, sim.layout.weight))]
 
 
 def learning(physics_dt: float, control_dt: float, seeds: int, max_trials: int) -> dict:

@@ -84,7 +84,7 @@ def _walk_session_batch(engine: str) -> SessionWalk:
         policy=ac.Weights(critic=jnp.zeros_like(means), mean=means, sigma=jnp.zeros(batch)))
     run = walk.make_walk(sim.engine, sim.layout, sim.params, round(WALK_SECONDS / sim.control_dt), feedback)
     trace = jax.device_get(run(sim.engine.init(sim.qpos0, batch), walk.initial_controller(batch), params))
-    return SessionWalk(trace=jax.tree.map(np.asarray, trace), gaits=walk.summarise(trace, sim.control_dt))
+    return SessionWalk(trace=jax.tree.map(np.asarray, trace), gaits=walk.summarise(trace, sim.control_dt, sim.layout.weight))
 
 
 @pytest.fixture(scope="session")

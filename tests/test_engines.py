@@ -147,13 +147,14 @@ def step_mjx(model: mujoco.MjModel, states: StartStates) -> tuple[EngineOutput, 
     start = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), blank)
     start = start.replace(qpos=jnp.asarray(states.qpos, dtype), qvel=jnp.asarray(states.qvel, dtype),
                           qacc_warmstart=jnp.zeros((batch, model.nv), dtype))
+    start = engines.MjxState(data=start, positive_work=jnp.zeros(batch, dtype))
     stepped = jax.jit(engine.step)(start, jnp.asarray(states.ctrl, dtype))
-    contact = stepped._impl.contact  # MJX's contacts of this step (at the starting state)
+    contact = stepped.data._impl.contact  # MJX's contacts of this step (at the starting state)
     geom, dist = np.asarray(contact.geom), np.asarray(contact.dist)
     counts = np.stack([(np.isin(geom, points).any(axis=-1) & (dist < 0)).sum(axis=-1)
                        for points in foot_contact_geoms(model)], axis=-1)
     sensors = jax.device_get(engine.sensors(stepped))
-    return EngineOutput(*(np.asarray(x, np.float64) for x in sensors)), counts
+    return EngineOutput(*(np.asarray(x, np.float64) for x in (sensors.qpos, sensors.qvel, sensors.sensordata))), counts
 
 
 def foot_contact_geoms(model: mujoco.MjModel) -> list[np.ndarray]:
@@ -256,7 +257,7 @@ def test_mjx_engine_starts_in_the_precision_jax_runs_in(mujoco_sim):
         floats = {x.dtype for x in jax.tree.leaves(state) if jnp.issubdtype(x.dtype, jnp.floating)}
         assert floats == {jnp.dtype(jnp.float64)}
         stepped = jax.jit(engine.step)(state, jnp.zeros((2, mujoco_sim.model.nu)))
-        assert stepped.qpos.dtype == jnp.float64 and np.isfinite(np.asarray(stepped.qpos)).all()
+        assert stepped.data.qpos.dtype == jnp.float64 and np.isfinite(np.asarray(stepped.data.qpos)).all()
 
 
 def test_one_step_agrees_to_float32_rounding(one_step, mujoco_sim):
@@ -377,7 +378,7 @@ def test_mjx_slices_on_the_cpu_step_like_one_vmap(monkeypatch):
     sim = make_simulation("mjx")
     batch = 5
     start = sim.engine.init(sim.qpos0, batch)
-    start = start.replace(qvel=start.qvel.at[:, 0].set(jnp.linspace(-0.2, 0.2, batch)))
+    start = start._replace(data=start.data.replace(qvel=start.data.qvel.at[:, 0].set(jnp.linspace(-0.2, 0.2, batch))))
     ctrl = jnp.tile(joint_targets(sim.params, sim.layout, jnp.zeros(6)), (batch, 1))  # standing targets
     whole = jax.jit(lambda s, u: sim.engine.step(s, u))(start, ctrl)
     monkeypatch.setattr(engines, "_CPU_SLICE", 2)
@@ -385,8 +386,9 @@ def test_mjx_slices_on_the_cpu_step_like_one_vmap(monkeypatch):
     top_level = jax.make_jaxpr(step_in_slices)(start, ctrl).jaxpr.eqns
     assert any(e.primitive.name == "scan" and e.params["length"] == 3 for e in top_level)  # 5 robots, 2 + 2 + 2
     sliced = jax.jit(step_in_slices)(start, ctrl)
-    np.testing.assert_allclose(sliced.qpos, whole.qpos, atol=1e-5)
-    np.testing.assert_allclose(sliced.qvel, whole.qvel, atol=1e-3)
+    np.testing.assert_allclose(sliced.data.qpos, whole.data.qpos, atol=1e-5)
+    np.testing.assert_allclose(sliced.data.qvel, whole.data.qvel, atol=1e-3)
+    np.testing.assert_allclose(sliced.positive_work, whole.positive_work, rtol=1e-3)
 
 
 @pytest.mark.parametrize("threaded", [False, True], ids=["one thread", "the threads"])

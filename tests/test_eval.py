@@ -179,10 +179,22 @@ def test_heading_drift_unwraps_across_the_half_turn():
     """A heading that turns from +170 to -170 degrees (through 180) has drifted by +20, not -340."""
     headings = np.radians([170.0, 175.0, 180.0, -175.0, -170.0])
     log = evaluate.TouchdownLog(count=np.array([5]), step=np.arange(5)[None], length=np.zeros((1, 5)),
-                                position=np.zeros((1, 5)), heading=headings[None])
+                                position=np.zeros((1, 5)), heading=headings[None], work=np.zeros((1, 5)))
     drift, largest = evaluate._heading_drift(log, 0, 0, 4)
     assert drift == pytest.approx(20.0) and largest == pytest.approx(20.0)
     assert evaluate._heading_drift(log, 0, 4, 4) == (None, None)  # fewer than one cycle
+
+
+def test_cycles_cost_of_transport_is_work_over_weight_times_distance():
+    """Touchdowns every 0.9 s, 0.06 m apart, with 4.5 J of positive work between them, for a
+    robot of 66 N: over three cycles CoT = 4.5 / (66 x 0.06), speed 0.06 / 0.9."""
+    dt, period = 0.008, round(0.9 / 0.008)
+    n = np.arange(6)
+    log = evaluate.TouchdownLog(count=np.array([6]), step=(n * period)[None], length=np.full((1, 6), 0.03),
+                                position=(0.06 * n)[None], heading=np.zeros((1, 6)), work=(4.5 * n + 10.0)[None])
+    cycles = evaluate._cycles(log, 0, 1, 3, dt, 66.0)
+    assert cycles.cost_of_transport == pytest.approx(4.5 / (66.0 * 0.06))
+    assert cycles.mean_vx == pytest.approx(0.06 / (period * dt))
 
 
 def test_least_squares_slope_recovers_a_line():

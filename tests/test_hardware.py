@@ -94,7 +94,7 @@ class Recorder(engines.Engine):
     def sensors(self, state):
         batch = state["applied"].shape[0]
         return Sensors(qpos=jnp.zeros((batch, self.model.nq)), qvel=jnp.zeros((batch, self.model.nv)),
-                       sensordata=state["sensordata"])
+                       sensordata=state["sensordata"], positive_work=jnp.zeros(batch))
 
 
 def _wrapped(**mismatch) -> hardware.HardwareEngine:

@@ -46,7 +46,7 @@ def sensors(layout: Layout, height: float, forward_velocity: float, roll_rate: f
     data = np.zeros(model.nsensordata, np.float32)
     data[layout.quat] = 1.0
     data[layout.gyro] = roll_rate
-    return Sensors(jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(data))
+    return Sensors(jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(data), jnp.float32(0.0))
 
 
 class Script:

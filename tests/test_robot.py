@@ -130,7 +130,7 @@ def test_dynamic_similarity_an_exactly_scaled_qrio_walks_sqrt2_slower_in_time(tm
     for robot in (QRIO, big):
         sim = make_simulation("native", platform=robot.name)
         trace = walk.walk_from_standing(sim, roll_rate_feedback, jnp.array([sim.params.hand_gain]), 20.0)
-        gaits[robot.name] = walk.summarise(trace, sim.control_dt)[0]
+        gaits[robot.name] = walk.summarise(trace, sim.control_dt, sim.layout.weight)[0]
     small, large = gaits["qrio"], gaits["qrio_x2"]
     assert not small.fell and not large.fell
     assert large.gait_period / small.gait_period == pytest.approx(math.sqrt(2), rel=0.05)
@@ -140,7 +140,7 @@ def test_dynamic_similarity_an_exactly_scaled_qrio_walks_sqrt2_slower_in_time(tm
 def child_hand_gait(engine: str) -> walk.GaitSummary:
     sim = make_simulation(engine, platform="child")
     trace = walk.walk_from_standing(sim, roll_rate_feedback, jnp.array([sim.params.hand_gain]), 20.0)
-    return walk.summarise(trace, sim.control_dt)[0]
+    return walk.summarise(trace, sim.control_dt, sim.layout.weight)[0]
 
 
 def test_child_walks_the_hand_designed_gait_20_s_on_mujoco_c():

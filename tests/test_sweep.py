@@ -158,7 +158,8 @@ def test_controls_run_beside_table1(finished_quick, tmp_path, walks_mujoco, mujo
     zero = [r["velocity_20s"] for r in stats["arms"]["zero_feedback"]]
     hand = [r["velocity_20s"] for r in stats["arms"]["hand_feedback"]]
     zero_after_start = walk.summarise(walk.walk_from_standing(mujoco_sim, lambda obs, k: 0.0 * k, jnp.zeros(1),
-                                                              20.0, hand_seconds=1.5), mujoco_sim.control_dt)[0]
+                                                              20.0, hand_seconds=1.5), mujoco_sim.control_dt,
+                                        mujoco_sim.layout.weight)[0]
     np.testing.assert_allclose(zero, zero_after_start.mean_vx, rtol=0.01)
     np.testing.assert_allclose(hand, walks_mujoco[HAND].mean_vx, rtol=0.01)
     for arm in ("learning_off", "learning_off_min_sigma", "zero_feedback", "hand_feedback"):

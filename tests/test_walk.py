@@ -30,7 +30,7 @@ def test_stepping_in_place(mujoco_sim):
     params = dataclasses.replace(mujoco_sim.params, amp_x=0.0)
     run = walk.make_walk(mujoco_sim.engine, mujoco_sim.layout, params, 2500, lambda obs, k: 0.0 * k)
     gait = walk.summarise(run(mujoco_sim.engine.init(mujoco_sim.qpos0, 1), walk.initial_controller(1),
-                              jnp.zeros(1)), params.control_dt)[0]
+                              jnp.zeros(1)), params.control_dt, mujoco_sim.layout.weight)[0]
     assert not gait.fell and abs(gait.mean_vx) < 0.01
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from mjxcpg.control.sim import Simulation
 from mjxcpg.jaxutil import xla
 from mjxcpg.physics import engines
+from mjxcpg.physics.model import with_power_sensors
 from mjxcpg.training import train
 
 MODELS = ("qrio", "humanoid")
@@ -161,8 +162,9 @@ def _xla_replay(engine: engines.Engine, shapes: train.Transition) -> tuple[Calla
 
 def _humanoid_physics(sim: Simulation, batch: int, control_steps: int) -> Workload:
     """MJX's humanoid from ``qpos0`` under zero controls, carried from call to call, with as
-    many physics steps per engine call as our robot's control period."""
-    model = mujoco.MjModel.from_xml_path(humanoid_path())
+    many physics steps per engine call as our robot's control period, and the power sensors
+    the engines read on every model of ours."""
+    model = with_power_sensors(mujoco.MjSpec.from_file(humanoid_path())).compile()
     engine = engines.make_engine(sim.engine.name, model, sim.engine.substeps)
     robot_steps = batch * control_steps * engine.substeps
     if not isinstance(engine, engines.MjxEngine):
@@ -173,7 +175,7 @@ def _humanoid_physics(sim: Simulation, batch: int, control_steps: int) -> Worklo
             nonlocal physics
             start = time.perf_counter()
             for _ in range(control_steps):
-                physics, _ = engine._simulate(physics, zeros)
+                physics = engine._simulate(physics, zeros)[0]
             return time.perf_counter() - start
 
         return Workload(run, robot_steps, None)

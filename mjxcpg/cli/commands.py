@@ -49,7 +49,7 @@ def cmd_walk(args: argparse.Namespace) -> dict:
         feedback = roll_rate_feedback
         fb_params = jnp.array([gain])
     trace = walk.walk_from_standing(sim, feedback, fb_params, args.seconds)
-    summary = walk.summarise(trace, sim.control_dt)[0].as_dict()
+    summary = walk.summarise(trace, sim.control_dt, sim.layout.weight)[0].as_dict()
     summary.update(engine=sim.engine.name, slope_deg=args.slope, controller=controller)
     return summary
 

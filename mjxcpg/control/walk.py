@@ -36,6 +36,7 @@ class Trace(NamedTuple):
     roll: jax.Array
     a5: jax.Array
     fallen: jax.Array
+    positive_work: jax.Array    # J, the actuators' over the period before (``Sensors``)
     qpos: jax.Array | None = None   # the full configuration, only from make_walk(record_qpos=True)
 
 
@@ -62,7 +63,7 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
         fallen = fallen | jax.vmap(lambda o: has_fallen(layout, o))(obs)
         physics = engine.step(physics, ctrl)
         trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
-                      obs.roll, a5, fallen, sensors.qpos if record_qpos else None)
+                      obs.roll, a5, fallen, obs.positive_work, sensors.qpos if record_qpos else None)
         return (physics, controller_state, fallen, fb_params), trace
 
     @xla.jit
@@ -94,6 +95,7 @@ class GaitSummary:
     mean_vx: float
     mean_pelvis_height: float
     gait_period: float | None
+    cost_of_transport: float | None
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -102,10 +104,12 @@ class GaitSummary:
 SETTLE_SECONDS = 2.0  # what ``summarise`` leaves out of a walk's start by default
 
 
-def summarise(trace: Trace, control_dt: float, settle_s: float = SETTLE_SECONDS) -> list[GaitSummary]:
+def summarise(trace: Trace, control_dt: float, weight: float,
+              settle_s: float = SETTLE_SECONDS) -> list[GaitSummary]:
     """Per robot: did it fall, simulated time before the fall, and, after ``settle_s`` and
-    before any fall, the mean forward speed, the mean pelvis height and the gait period
-    (a gait cycle is one period of the lateral sway: upward zero crossings of pelvis roll)."""
+    before any fall, the mean forward speed, the mean pelvis height, the gait period (a gait
+    cycle is one period of the lateral sway: upward zero crossings of pelvis roll) and the
+    cost of transport along +x (``weight``: m g, newtons)."""
     out = []
     for k in range(trace.height.shape[0]):
         fallen = np.asarray(trace.fallen[k])
@@ -116,11 +120,20 @@ def summarise(trace: Trace, control_dt: float, settle_s: float = SETTLE_SECONDS)
         span = (n - 1 - start) * control_dt
         mean_vx = float((x[n - 1] - x[start]) / span) if span > 0 else 0.0
         period = sway_period(np.asarray(trace.roll[k])[start:n], control_dt)
+        # The work read at a period's start is that of the period before it.
+        work = float(np.sum(np.asarray(trace.positive_work[k])[start + 1:n], dtype=np.float64))
         out.append(GaitSummary(
             fell=bool(fallen.any()), seconds=n * control_dt, mean_vx=mean_vx,
             mean_pelvis_height=float(np.mean(h[start:n])) if n > start else float("nan"),
-            gait_period=period))
+            gait_period=period,
+            cost_of_transport=cost_of_transport(work, weight, float(x[n - 1] - x[start])) if span > 0 else None))
     return out
+
+
+def cost_of_transport(positive_work: float, weight: float, distance: float) -> float | None:
+    """CoT = positive actuator work / (m g distance), dimensionless (Collins et al., Science
+    2005: about 0.2 for human walking, 3.2 for ASIMO); None unless the robot went forward."""
+    return positive_work / (weight * distance) if distance > 0 else None
 
 
 def sway_period(roll: np.ndarray, dt: float) -> float | None:

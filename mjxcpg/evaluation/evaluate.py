@@ -31,12 +31,13 @@ the batch's size: docs/evaluation.md).
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxcpg.control import walk
 from mjxcpg.control.sim import Simulation
 from mjxcpg.evaluation.protocol import PUSH_DIRECTIONS, EvalParams, Protocol, make_protocol
 from mjxcpg.evaluation.rollout import EvalState, TouchdownLog, learner_keys, make_runner
@@ -45,17 +46,29 @@ from mjxcpg.learning.learner import Task
 
 # ---------------------------------------------------------------- analysis (host side)
 
-def _cycles(log: TouchdownLog, k: int, first: int, cycles: int, dt: float) -> tuple[float, float, float]:
-    """Over up to ``cycles`` gait cycles (left touchdown to left touchdown) from touchdown
-    ``first``: the mean forward speed, the mean step length at their starting touchdowns and
-    the mean cycle time (NaN when fewer than one cycle was logged)."""
+class Cycles(NamedTuple):
+    """Means over whole gait cycles (left touchdown to left touchdown); NaN when fewer than
+    one cycle was logged, ``cost_of_transport`` None unless the robot went forward."""
+
+    mean_vx: float
+    step_length: float
+    cycle_s: float
+    cost_of_transport: float | None
+
+
+def _cycles(log: TouchdownLog, k: int, first: int, cycles: int, dt: float, weight: float) -> Cycles:
+    """Over up to ``cycles`` gait cycles from touchdown ``first``: the mean forward speed, the
+    mean step length at their starting touchdowns, the mean cycle time and the cost of
+    transport along +x (``weight``: m g, newtons)."""
     n = min(cycles + 1, int(log.count[k]) - first, log.step.shape[1] - first)
     if n < 2:
-        return float("nan"), float("nan"), float("nan")
+        return Cycles(float("nan"), float("nan"), float("nan"), None)
     steps = log.step[k, first:first + n]
     span = (steps[-1] - steps[0]) * dt
-    return (float((log.position[k, first + n - 1] - log.position[k, first]) / span),
-            float(np.mean(log.length[k, first:first + n - 1])), float(span / (n - 1)))
+    distance = float(log.position[k, first + n - 1] - log.position[k, first])
+    work = float(log.work[k, first + n - 1]) - float(log.work[k, first])
+    return Cycles(distance / span, float(np.mean(log.length[k, first:first + n - 1])), float(span / (n - 1)),
+                  walk.cost_of_transport(work, weight, distance))
 
 
 def least_squares_slope(x: np.ndarray, y: np.ndarray) -> dict:
@@ -81,7 +94,7 @@ def _heading_drift(log: TouchdownLog, k: int, first: int, cycles: int) -> tuple[
     return float(heading[-1]), float(heading[np.argmax(np.abs(heading))])
 
 
-def return_map_results(state: EvalState, protocol: Protocol, dt: float) -> list[dict]:
+def return_map_results(state: EvalState, protocol: Protocol, dt: float, weight: float) -> list[dict]:
     """Per robot: velocity, fixed point, the (x_n, x_{n+1}) pairs and the eigenvalue; and how
     the unperturbed walk lasts: whether it fell before its last unperturbed cycle, its speed
     over the first and over the second half of those cycles, and its heading's drift."""
@@ -89,12 +102,12 @@ def return_map_results(state: EvalState, protocol: Protocol, dt: float) -> list[
     log, probe = state.log, state.probe
     for k in range(log.count.shape[0]):
         first = _first_settled(log, k, protocol)
-        velocity, fixed_point, cycle = _cycles(log, k, first, protocol.fixed_point_steps, dt)
+        velocity, fixed_point, cycle, cost = _cycles(log, k, first, protocol.fixed_point_steps, dt, weight)
         half = protocol.fixed_point_steps // 2
-        first_half_vx = _cycles(log, k, first, half, dt)[0]
+        first_half_vx = _cycles(log, k, first, half, dt, weight).mean_vx
         last = first + protocol.fixed_point_steps  # the touchdown that ends the unperturbed cycles
         all_logged = min(int(log.count[k]), log.step.shape[1]) > last
-        last_half_vx = _cycles(log, k, first + half, protocol.fixed_point_steps - half, dt)[0] \
+        last_half_vx = _cycles(log, k, first + half, protocol.fixed_point_steps - half, dt, weight).mean_vx \
             if all_logged else float("nan")
         drift, largest = _heading_drift(log, k, first, protocol.fixed_point_steps)
         unperturbed_done = all_logged and (not state.fallen[k] or state.fall_step[k] > log.step[k, last])
@@ -107,7 +120,7 @@ def return_map_results(state: EvalState, protocol: Protocol, dt: float) -> list[
         out.append({
             "fell": bool(state.fallen[k]),
             "fall_seconds": float(state.fall_step[k] * dt) if state.fallen[k] else None,
-            "mean_vx": velocity, "gait_cycle_s": cycle,
+            "mean_vx": velocity, "gait_cycle_s": cycle, "cost_of_transport": cost,
             "walked_unperturbed_cycles": bool(unperturbed_done),
             "mean_vx_first_half": first_half_vx, "mean_vx_last_half": last_half_vx,
             "heading_drift_deg": drift, "heading_largest_deg": largest,
@@ -129,7 +142,7 @@ def evaluate_return_map(sim: Simulation, task: Task, weights: Any, learners: Seq
     """Fig 7's velocity and Fig 8's return map of every learner, one batch."""
     protocol = make_protocol("return_map", params, sim.layout, sim.control_dt)
     state = make_runner(sim, task, protocol, params)(weights, learner_keys(params.seed, learners, 8))
-    return return_map_results(state, protocol, sim.control_dt)
+    return return_map_results(state, protocol, sim.control_dt, sim.layout.weight)
 
 
 def evaluate_slopes(run_sim: Simulation, task: Task, weights: Any, learners: Sequence[int],
@@ -159,7 +172,7 @@ def evaluate_slopes(run_sim: Simulation, task: Task, weights: Any, learners: Seq
             rows = []
             for k in range(batch):
                 velocity = _cycles(state.log, k, _first_settled(state.log, k, protocol),
-                                   protocol.capacity, sim.control_dt)[0] if walking[k] else None
+                                   protocol.capacity, sim.control_dt, sim.layout.weight).mean_vx if walking[k] else None
                 velocity = None if velocity is None or math.isnan(velocity) else velocity
                 rows.append({"tried": bool(walking[k]), "fell": bool(state.fallen[k]) if walking[k] else None,
                              "mean_vx": velocity})

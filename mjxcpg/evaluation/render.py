@@ -89,7 +89,7 @@ def record_gait(run_dir: Path, learner: int, seconds: float, engine: str | None 
     runs.check_learners(spec, [learner])
     weights = jax.tree.map(lambda w: w[learner:learner + 1], state.learners.weights)
     trace = walk.walk_from_standing(sim, actor_feedback(task), weights, seconds, record_qpos=True)
-    summary = walk.summarise(trace, sim.control_dt)[0]
+    summary = walk.summarise(trace, sim.control_dt, sim.layout.weight)[0]
     return Gait(model=sim.model, qpos=np.asarray(trace.qpos[0], np.float64), dt=sim.control_dt,
                 fell=summary.fell, seconds=summary.seconds, mean_vx=summary.mean_vx,
                 robot=robots.platform(spec.platform))

@@ -79,14 +79,18 @@ def summarise_return_map(result: dict) -> dict:
     stable = [r for r in fitted if r["return_map"]["stable"] and not r["return_map"]["fell"]]
     eig = [r["return_map"]["eigenvalue"] for r in fitted]
     by_ks: dict = defaultdict(list)
+    cot_by_ks: dict = defaultdict(list)
     for r in good:
         if not r["return_map"]["fell"] and _finite(r["return_map"]["mean_vx"]):
             by_ks[r["k_s"]].append(r["return_map"]["mean_vx"])
+        if not r["return_map"]["fell"] and _finite(r["return_map"].get("cost_of_transport")):
+            cot_by_ks[r["k_s"]].append(r["return_map"]["cost_of_transport"])
     propelled = [r for r in good if r["k_s"] >= 1]
     lasting = [r for r in propelled if walk_lasts(r)]
     return dict(
         lasting_propelled=f"{len(lasting)}/{len(propelled)}",
         velocity_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(by_ks.items())},
+        cost_of_transport_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(cot_by_ks.items())},
         eigenvalue_median=float(np.median(eig)) if eig else None,
         eigenvalue_range=[float(min(eig)), float(max(eig))] if eig else None,
         stable_successful=f"{len(stable)}/{len(good)}", paper_eigenvalue=PAPER_EIGENVALUE)
@@ -100,9 +104,11 @@ def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
     lines = ["## Velocity against k_s (Fig 7)", "",
              f"Mean forward speed over {result['params']['fixed_point_steps']} unperturbed gait cycles "
              f"after {result['params']['settle_seconds']:g} s. The paper: velocity rises with k_s "
-             f"(Fig 7); its Fig 6 gait walks at {PAPER_VELOCITY} m/s.", "",
-             "| k_s | policies walking (successful) | mean velocity (m/s) | per policy (m/s) |",
-             "|---|---|---|---|"]
+             f"(Fig 7); its Fig 6 gait walks at {PAPER_VELOCITY} m/s. Cost of transport over the same "
+             "cycles: the actuators' positive mechanical work over m g times the distance along +x "
+             "(Collins et al., Science 2005: human walking about 0.2, ASIMO about 3.2).", "",
+             "| k_s | policies walking (successful) | mean velocity (m/s) | mean cost of transport | "
+             "per policy (m/s) |", "|---|---|---|---|---|"]
     by_ks: dict = defaultdict(list)
     for r in rows:
         by_ks[r["k_s"]].append(r)
@@ -111,7 +117,9 @@ def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
         mean = summary["velocity_by_ks"].get(f"{k_s:g}")
         each = ", ".join(_fmt(r["return_map"]["mean_vx"]) + ("" if r["succeeded"] else " (not learned)")
                          for r in by_ks[k_s])
-        lines.append(f"| {k_s:g} | {len(ok)}/{sum(r['succeeded'] for r in by_ks[k_s])} | {_fmt(mean)} | {each} |")
+        cost = summary.get("cost_of_transport_by_ks", {}).get(f"{k_s:g}")
+        lines.append(f"| {k_s:g} | {len(ok)}/{sum(r['succeeded'] for r in by_ks[k_s])} | {_fmt(mean)} | "
+                     f"{_fmt(cost, '.2f')} | {each} |")
     lines += ["", "![velocity vs k_s](eval/velocity_vs_ks.png)", "",
               "## Does the walk last?", "",
               f"Each policy's speed over the first and the second half of the same "
@@ -244,6 +252,7 @@ def summarise_references(result: dict) -> dict:
         rm, slopes = ref["return_map"], ref["slopes"]
         out[f"{actor}_slopes_deg"] = [slopes["uphill_deg"], slopes["downhill_deg"]]
         out[f"{actor}_mean_vx"] = rm["mean_vx"]
+        out[f"{actor}_cost_of_transport"] = rm.get("cost_of_transport")
         out[f"{actor}_pushes_Ns"] = {name: p["impulse"] for name, p in ref["pushes"].items()}
     return out
 
@@ -256,14 +265,15 @@ def references_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
              "What the policies' figures above compare with: the feedback that starts every learning "
              "trial (a_5 = K d theta_roll/dt) and no propulsive feedback at all, each walked as the "
              "policies were (same start, same protocols).", "",
-             "| feedback | mean velocity (m/s) | first / second half | heading drift (deg) | fell | "
-             "eigenvalue | uphill (deg) | downhill (deg) | " + " | ".join(f"push {n} (N s)" for n in names) + " |",
-             "|---|---|---|---|---|---|---|---|" + "---|" * len(names)]
+             "| feedback | mean velocity (m/s) | cost of transport | first / second half | heading drift (deg) | "
+             "fell | eigenvalue | uphill (deg) | downhill (deg) | " + " | ".join(f"push {n} (N s)" for n in names) + " |",
+             "|---|---|---|---|---|---|---|---|---|" + "---|" * len(names)]
     for ref in refs.values():
         rm, slopes = ref["return_map"], ref["slopes"]
         fell = f"at {rm['fall_seconds']:.1f} s" if rm["fell"] else "no"
         pushes = [(">=" if ref["pushes"][n]["capped"] else "") + f"{ref['pushes'][n]['impulse']:.2f}" for n in names]
-        lines.append(f"| {ref['label']} | {_fmt(rm['mean_vx'])} | {_fmt(rm.get('mean_vx_first_half'))} / "
+        lines.append(f"| {ref['label']} | {_fmt(rm['mean_vx'])} | {_fmt(rm.get('cost_of_transport'), '.2f')} | "
+                     f"{_fmt(rm.get('mean_vx_first_half'))} / "
                      f"{_fmt(rm.get('mean_vx_last_half'))} | {_fmt(rm.get('heading_drift_deg'), '+.1f')} | {fell} | "
                      f"{_fmt(rm['eigenvalue'])} | {_fmt(slopes['uphill_deg'], '+.0f')} | "
                      f"{_fmt(slopes['downhill_deg'], '+.0f')} | " + " | ".join(pushes) + " |")

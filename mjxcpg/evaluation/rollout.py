@@ -53,13 +53,15 @@ def step_length(layout: Layout, joints: LegJoints, qpos: jax.Array, obs: Observa
 
 class TouchdownLog(NamedTuple):
     """Left touchdowns of one robot: count, then per touchdown its control period, the step
-    length, the pelvis' forward position and its heading (yaw, rad)."""
+    length, the pelvis' forward position, its heading (yaw, rad) and the actuators' positive
+    work since the walk began (J)."""
 
     count: jax.Array
     step: jax.Array
     length: jax.Array
     position: jax.Array
     heading: jax.Array
+    work: jax.Array
 
 
 class EvalState(NamedTuple):
@@ -72,6 +74,7 @@ class EvalState(NamedTuple):
     fall_step: jax.Array
     skipped: jax.Array              # robots excluded from the start (never stepped)
     unloaded_steps: jax.Array       # control periods the left sole has been unloaded
+    work: jax.Array                 # the actuators' positive work since the walk began (J)
     probe: Probe
     log: TouchdownLog
 
@@ -87,12 +90,13 @@ def init_eval(sim: Simulation, protocol: Protocol, keys: jax.Array, pushes: jax.
         controller=jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), init_state()),
         step=jnp.int32(0), fallen=jnp.zeros(batch, bool), fall_step=jnp.full(batch, -1, jnp.int32),
         skipped=jnp.zeros(batch, bool) if skipped is None else jnp.asarray(skipped, bool),
-        unloaded_steps=jnp.zeros(batch, jnp.int32),
+        unloaded_steps=jnp.zeros(batch, jnp.int32), work=jnp.zeros(batch, jnp.float32),
         probe=jax.vmap(functools.partial(init_probe, protocol))(keys, pushes),
         log=TouchdownLog(count=jnp.zeros(batch, jnp.int32), step=jnp.full((batch, c), -1, jnp.int32),
                          length=jnp.full((batch, c), jnp.nan, jnp.float32),
                          position=jnp.full((batch, c), jnp.nan, jnp.float32),
-                         heading=jnp.full((batch, c), jnp.nan, jnp.float32)))
+                         heading=jnp.full((batch, c), jnp.nan, jnp.float32),
+                         work=jnp.full((batch, c), jnp.nan, jnp.float32)))
 
 
 def is_done(protocol: Protocol, state: EvalState) -> jax.Array:
@@ -108,8 +112,9 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
     layout, engine = sim.layout, sim.engine
     pushing = protocol.mode == "push"
 
-    def one_robot(t, controller_state, sensors, weights, unloaded, log, probe, active):
+    def one_robot(t, controller_state, sensors, weights, unloaded, work, log, probe, active):
         obs = observe(layout, sensors)
+        work = work + obs.positive_work  # through the period before this one
         fell = has_fallen(layout, obs)
         # Left touchdown: the sole loaded again after a long enough unloaded spell.
         touchdown = active & ~fell & (obs.force_left >= protocol.touchdown_force) & (
@@ -125,19 +130,20 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
             length=log.length.at[slot].set(jnp.where(
                 write, step_length(layout, joints, sensors.qpos, obs), log.length[slot])),
             position=log.position.at[slot].set(jnp.where(write, obs.forward_position, log.position[slot])),
-            heading=log.heading.at[slot].set(jnp.where(write, obs.heading, log.heading[slot])))
+            heading=log.heading.at[slot].set(jnp.where(write, obs.heading, log.heading[slot])),
+            work=log.work.at[slot].set(jnp.where(write, work, log.work[slot])))
         probe = advance_probe(protocol, probe, t, touchdown, index)
         offset, force = probe_drive(protocol, probe, t)
         a5 = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)
         controller_state, ctrl = control_step(task.controller, layout, controller_state, obs, a5, offset)
-        return controller_state, ctrl, force, fell, unloaded, log, probe
+        return controller_state, ctrl, force, fell, unloaded, work, log, probe
 
     def body(state: EvalState, weights):
         active = ~is_done(protocol, state)
-        controller_state, ctrl, force, fell, unloaded, log, probe = jax.vmap(
-            one_robot, in_axes=(None, 0, 0, 0, 0, 0, 0, 0))(
+        controller_state, ctrl, force, fell, unloaded, work, log, probe = jax.vmap(
+            one_robot, in_axes=(None, 0, 0, 0, 0, 0, 0, 0, 0))(
             state.step, state.controller, engine.sensors(state.physics), weights, state.unloaded_steps,
-            state.log, state.probe, active)
+            state.work, state.log, state.probe, active)
         fell = active & fell
         physics = engine.step(state.physics, ctrl, active & ~fell,
                               **({"pelvis_force": force} if pushing else {}))
@@ -149,6 +155,7 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
             physics=physics, controller=keep(controller_state, state.controller), step=state.step + 1,
             fallen=state.fallen | fell, fall_step=jnp.where(fell, state.step, state.fall_step),
             skipped=state.skipped, unloaded_steps=keep(unloaded, state.unloaded_steps),
+            work=keep(work, state.work),
             probe=keep(probe, state.probe), log=keep(log, state.log))
 
     @xla.jit

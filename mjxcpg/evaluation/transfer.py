@@ -142,7 +142,7 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
     rows = jnp.repeat(jnp.asarray(chosen), repeats)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
     trace = walk.walk_from_standing(sim, actor_feedback(task), weights, seconds)
-    gaits = walk.summarise(trace, sim.control_dt)
+    gaits = walk.summarise(trace, sim.control_dt, sim.layout.weight)
     succeeded = np.asarray(state.learners.book.trials_to_success)[chosen] >= 0
     results = []
     for i, (k, ok) in enumerate(zip(chosen, succeeded)):

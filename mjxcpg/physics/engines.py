@@ -34,7 +34,7 @@ from jax.experimental.buffer_callback import buffer_callback
 
 from mjxcpg.jaxutil.pytree import tree_where
 from mjxcpg.physics import native_step
-from mjxcpg.physics.model import Sensors
+from mjxcpg.physics.model import Sensors, positive_power, power_sensor_slices
 from mjxcpg.robots.qrio import QRIO
 
 ENGINES = ("mujoco", "native", "mjx")
@@ -98,8 +98,9 @@ class Engine(abc.ABC):
 
 
 class CState(NamedTuple):
-    physics: jax.Array     # (batch, nstate) float32, mjSTATE_FULLPHYSICS
-    sensordata: jax.Array  # (batch, nsensordata)
+    physics: jax.Array        # (batch, nstate) float32, mjSTATE_FULLPHYSICS
+    sensordata: jax.Array     # (batch, nsensordata)
+    positive_work: jax.Array  # (batch,) the actuators' over the last control period (``Sensors``)
 
 
 class _CEngine(Engine):
@@ -109,6 +110,7 @@ class _CEngine(Engine):
         super().__init__(model, substeps, pelvis)
         self.nstate = mujoco.mj_stateSize(model, _FULLPHYSICS)
         self._data = mujoco.MjData(model)
+        self._power = power_sensor_slices(model)
 
     def init(self, qpos: np.ndarray, batch: int) -> CState:
         data = self._data
@@ -120,59 +122,65 @@ class _CEngine(Engine):
         return CState(
             physics=jnp.tile(jnp.asarray(physics, jnp.float32), (batch, 1)),
             sensordata=jnp.tile(jnp.asarray(data.sensordata, jnp.float32), (batch, 1)),
+            positive_work=jnp.zeros(batch, jnp.float32),
         )
 
     def sensors(self, state: CState) -> Sensors:
         nq, nv = self.model.nq, self.model.nv
         return Sensors(qpos=state.physics[:, 1:1 + nq],
                        qvel=state.physics[:, 1 + nq:1 + nq + nv],
-                       sensordata=state.sensordata)
+                       sensordata=state.sensordata, positive_work=state.positive_work)
 
     def step(self, state: CState, ctrl: jax.Array, active: jax.Array | None = None,
              pelvis_force: jax.Array | None = None) -> CState:
         batch = state.physics.shape[0]
-        inputs = [state.physics, state.sensordata, ctrl.astype(jnp.float32),
+        inputs = [state.physics, state.sensordata, state.positive_work, ctrl.astype(jnp.float32),
                   jnp.ones(batch, bool) if active is None else active]
         if pelvis_force is not None:
             inputs.append(pelvis_force.astype(jnp.float32))
-        outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
-                   jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
+        outputs = tuple(jax.ShapeDtypeStruct(x.shape, jnp.float32) for x in state)
         if _one_cpu_device():
             # The host writes the stepped rows straight into XLA's buffers, which alias the
             # inputs, so idle robots cost no copy and nothing is packed or allocated.  (Over
             # several devices, buffer_callback runs once per device: there the batch goes to one
             # device through pure_callback.)
-            physics, sensordata = buffer_callback(
+            stepped = buffer_callback(
                 self._host_step_in_place, outputs, vmap_method="sequential",
-                input_output_aliases={0: 0, 1: 1})(*inputs)
+                input_output_aliases={0: 0, 1: 1, 2: 2})(*inputs)
         else:  # the host works on copies
-            physics, sensordata = jax.pure_callback(self._host_step_copied, outputs, *inputs,
-                                                    vmap_method="sequential")
-        return CState(physics=physics, sensordata=sensordata)
+            stepped = jax.pure_callback(self._host_step_copied, outputs, *inputs, vmap_method="sequential")
+        return CState(*stepped)
 
     def _host_step_in_place(self, _context, out, *inputs) -> None:
-        physics, sensordata = (np.asarray(buffer) for buffer in out)  # views, aliasing inputs 0, 1
-        self._host_step(physics, sensordata, *(np.asarray(x) for x in inputs[2:]))
+        physics, sensordata, work = (np.asarray(buffer) for buffer in out)  # views, aliasing inputs 0-2
+        self._host_step(physics, sensordata, work, *(np.asarray(x) for x in inputs[3:]))
 
-    def _host_step_copied(self, physics, sensordata, *inputs) -> tuple[np.ndarray, np.ndarray]:
-        physics, sensordata = np.array(physics), np.array(sensordata)
-        self._host_step(physics, sensordata, *(np.asarray(x) for x in inputs))
-        return physics, sensordata
+    def _host_step_copied(self, physics, sensordata, work, *inputs) -> tuple[np.ndarray, ...]:
+        physics, sensordata, work = np.array(physics), np.array(sensordata), np.array(work)
+        self._host_step(physics, sensordata, work, *(np.asarray(x) for x in inputs))
+        return physics, sensordata, work
 
-    def _host_step(self, physics: np.ndarray, sensordata: np.ndarray, ctrl: np.ndarray,
+    def _host_step(self, physics: np.ndarray, sensordata: np.ndarray, work: np.ndarray, ctrl: np.ndarray,
                    active: np.ndarray, pelvis_force: np.ndarray | None = None) -> None:
-        """Step the active rows of ``physics`` and ``sensordata`` (float32) in place."""
+        """Step the active rows of ``physics``, ``sensordata`` and ``work`` (float32) in place."""
         rows = slice(None) if active.all() else np.flatnonzero(active)
         start = physics[rows].astype(np.float64)
         if len(start) == 0:
             return
         force = None if pelvis_force is None else pelvis_force[rows]
-        stepped, stepped_sensors = self._simulate(start, ctrl[rows], force)
+        stepped, stepped_sensors, stepped_work = self._simulate(start, ctrl[rows], force)
         diverged = self._diverged(start, stepped)
         if diverged is not None:
             stepped[diverged] = np.nan
             stepped_sensors[diverged] = np.nan
-        physics[rows], sensordata[rows] = stepped, stepped_sensors
+            stepped_work[diverged] = np.nan
+        physics[rows], sensordata[rows], work[rows] = stepped, stepped_sensors, stepped_work
+
+    def _period_work(self, sensordata: np.ndarray) -> np.ndarray:
+        """(..., substeps, nsensordata) of every physics step of a period -> the actuators'
+        positive work over it (J): each step's power (``model.positive_power``) times its length."""
+        force, velocity = self._power
+        return positive_power(sensordata[..., force], sensordata[..., velocity]).sum(axis=-1) * self.model.opt.timestep
 
     def _diverged(self, start: np.ndarray, stepped: np.ndarray) -> np.ndarray | None:
         """Which rows diverged, or None if none did.  MuJoCo resets a diverged simulation to
@@ -186,9 +194,9 @@ class _CEngine(Engine):
 
     @abc.abstractmethod
     def _simulate(self, physics: np.ndarray, ctrl: np.ndarray,
-                  pelvis_force: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  pelvis_force: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Host side: (batch, nstate) float64, (batch, nu) and optional (batch, 3) of any float
-        type -> new state and sensordata, float64."""
+        type -> new state, sensordata and the period's positive actuator work, float64."""
 
 
 class MujocoEngine(_CEngine):
@@ -200,18 +208,21 @@ class MujocoEngine(_CEngine):
         model, data = self.model, self._data
         new_physics = np.empty_like(physics)
         sensordata = np.empty((len(physics), model.nsensordata))
+        work = np.empty(len(physics))
+        substep_sensors = np.empty((self.substeps, model.nsensordata))
         for b in range(len(physics)):
             mujoco.mj_setState(model, data, physics[b], _FULLPHYSICS)
             data.qacc_warmstart[:] = 0
             data.ctrl[:] = ctrl[b]
             if pelvis_force is not None:
                 data.xfrc_applied[self.pelvis, :3] = pelvis_force[b]
-            for _ in range(self.substeps):
+            for t in range(self.substeps):
                 mujoco.mj_step(model, data)
+                substep_sensors[t] = data.sensordata
             data.xfrc_applied[:] = 0
             mujoco.mj_getState(model, data, new_physics[b], _FULLPHYSICS)
-            sensordata[b] = data.sensordata
-        return new_physics, sensordata
+            sensordata[b], work[b] = data.sensordata, self._period_work(substep_sensors)
+        return new_physics, sensordata, work
 
 
 def native_threads() -> int:
@@ -258,15 +269,16 @@ class NativeEngine(_CEngine):
         target = native_step.step_handler() if in_xla else None
         if target is None:
             return super().step(state, ctrl, active, pelvis_force)
-        outputs = (jax.ShapeDtypeStruct(state.physics.shape, jnp.float32),
-                   jax.ShapeDtypeStruct(state.sensordata.shape, jnp.float32))
-        physics, sensordata = jax.ffi.ffi_call(target, outputs, input_output_aliases={0: 0, 1: 1},
-                                               vmap_method="sequential")(
-            state.physics, state.sensordata, ctrl.astype(jnp.float32),
+        outputs = tuple(jax.ShapeDtypeStruct(x.shape, jnp.float32) for x in state)
+        force, velocity = self._power
+        stepped = jax.ffi.ffi_call(target, outputs, input_output_aliases={0: 0, 1: 1, 2: 2},
+                                   vmap_method="sequential")(
+            state.physics, state.sensordata, state.positive_work, ctrl.astype(jnp.float32),
             jnp.ones(batch, bool) if active is None else active,
             model=np.int64(self.model._address), datas=np.int64(self._ffi_addresses.ctypes.data),
-            threads=np.int64(self.threads_for(batch)), substeps=np.int64(self.substeps))
-        return CState(physics=physics, sensordata=sensordata)
+            threads=np.int64(self.threads_for(batch)), substeps=np.int64(self.substeps),
+            force_address=np.int64(force.start), velocity_address=np.int64(velocity.start))
+        return CState(*stepped)
 
     def _simulate(self, physics, ctrl, pelvis_force=None):
         batch = len(physics)
@@ -284,7 +296,7 @@ class NativeEngine(_CEngine):
         runner.rollout(out.models, datas, np.ascontiguousarray(physics, np.float64), control,
                        control_spec=int(spec), skip_checks=True, nstep=self.substeps,
                        initial_warmstart=out.warmstart, state=out.state, sensordata=out.sensordata)
-        return out.state[:, -1].copy(), out.sensordata[:, -1].copy()
+        return out.state[:, -1].copy(), out.sensordata[:, -1].copy(), self._period_work(out.sensordata)
 
     def threads_for(self, batch: int) -> int:
         """All the threads from ``_ROBOTS_PER_THREAD`` robots per thread, else one."""
@@ -309,6 +321,11 @@ class _RolloutBuffers(NamedTuple):
     sensordata: np.ndarray
 
 
+class MjxState(NamedTuple):
+    data: Any                 # batched ``mjx.Data``
+    positive_work: jax.Array  # (batch,) the actuators' over the last control period (``Sensors``)
+
+
 class MjxEngine(Engine):
     """MuJoCo MJX (JAX implementation), ``vmap``-ed over the batch."""
 
@@ -321,33 +338,45 @@ class MjxEngine(Engine):
         super().__init__(model, substeps, pelvis)
         self._mjx = mjx
         self.mjx_model = mjx.put_model(model, impl="jax")
+        self._power = power_sensor_slices(model)
 
-    def init(self, qpos: np.ndarray, batch: int):
+    def init(self, qpos: np.ndarray, batch: int) -> MjxState:
         mjx = self._mjx
         data = mjx.make_data(self.model, impl="jax")
         data = data.replace(qpos=jnp.asarray(qpos, data.qpos.dtype))
         data = jax.jit(mjx.forward)(self.mjx_model, data)
-        return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), data)
+        return MjxState(data=jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), data),
+                        positive_work=jnp.zeros(batch, data.qpos.dtype))
 
-    def sensors(self, state) -> Sensors:
-        return Sensors(qpos=state.qpos, qvel=state.qvel, sensordata=state.sensordata)
+    def sensors(self, state: MjxState) -> Sensors:
+        data = state.data
+        return Sensors(qpos=data.qpos, qvel=data.qvel, sensordata=data.sensordata,
+                       positive_work=state.positive_work)
 
-    def step(self, state, ctrl: jax.Array, active: jax.Array | None = None,
-             pelvis_force: jax.Array | None = None):
+    def step(self, state: MjxState, ctrl: jax.Array, active: jax.Array | None = None,
+             pelvis_force: jax.Array | None = None) -> MjxState:
         mjx, model = self._mjx, self.mjx_model
+        force, velocity = self._power
+        dt = self.model.opt.timestep
 
         def one_robot(data, u):
-            data = data.replace(ctrl=u)
-            return jax.lax.fori_loop(0, self.substeps, lambda _, d: mjx.step(model, d), data)
+            def physics_step(_, carry):
+                data, work = carry
+                data = mjx.step(model, data)
+                return data, work + positive_power(data.sensordata[force], data.sensordata[velocity]) * dt
+            return jax.lax.fori_loop(0, self.substeps, physics_step,
+                                     (data.replace(ctrl=u), jnp.zeros((), data.qpos.dtype)))
 
-        def one_pushed_robot(data, u, force):
-            pushed = data.replace(xfrc_applied=data.xfrc_applied.at[self.pelvis, :3].set(force))
-            return one_robot(pushed, u).replace(xfrc_applied=data.xfrc_applied)
+        def one_pushed_robot(data, u, push):
+            pushed = data.replace(xfrc_applied=data.xfrc_applied.at[self.pelvis, :3].set(push))
+            stepped, work = one_robot(pushed, u)
+            return stepped.replace(xfrc_applied=data.xfrc_applied), work
 
         if pelvis_force is None:
-            stepped = self._map(one_robot, state, ctrl)
+            stepped = MjxState(*self._map(one_robot, state.data, ctrl))
         else:
-            stepped = self._map(one_pushed_robot, state, ctrl, pelvis_force.astype(state.qpos.dtype))
+            stepped = MjxState(*self._map(one_pushed_robot, state.data, ctrl,
+                                          pelvis_force.astype(state.data.qpos.dtype)))
         # In lockstep every robot costs the same, so idle ones are stepped and discarded.
         return stepped if active is None else tree_where(active, stepped, state)
 

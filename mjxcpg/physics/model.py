@@ -27,7 +27,8 @@ def load_model(slope_deg: float = 0.0, path: Path | str | None = None,
         raise ValueError(f"slope must be within +/-{MAX_SLOPE_DEG:g} degrees, got {slope_deg:g}")
     # Package data, so that an installed (non-editable) mjxcpg finds its robot too.
     with importlib.resources.as_file(robot.mjcf_resource()) as default_path:
-        model = mujoco.MjModel.from_xml_path(str(path or default_path))
+        spec = mujoco.MjSpec.from_file(str(path or default_path))
+    model = with_power_sensors(spec).compile()
     half = math.radians(-slope_deg) / 2  # rotating the plane about +y by -slope tilts it uphill
     floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, robot.floor)
     model.geom_quat[floor] = [math.cos(half), 0.0, math.sin(half), 0.0]
@@ -38,6 +39,42 @@ def load_model(slope_deg: float = 0.0, path: Path | str | None = None,
         # constants: without this the C engines would keep a level floor.
         mujoco.mj_setConst(model, mujoco.MjData(model))
     return model
+
+
+POWER_SENSOR_PREFIX = "power_"
+
+
+def with_power_sensors(spec: mujoco.MjSpec) -> mujoco.MjSpec:
+    """``spec`` with an ``actuatorfrc`` and an ``actuatorvel`` sensor per actuator, after its own
+    sensors (whose addresses stay as they were): the actuators' mechanical power, force times
+    velocity as MuJoCo applied them, whatever the servo law, its limits or its latency.
+    Sensors do not act on the dynamics."""
+    names = [actuator.name for actuator in spec.actuators]
+    for kind, sensor_type in (("force", mujoco.mjtSensor.mjSENS_ACTUATORFRC),
+                              ("velocity", mujoco.mjtSensor.mjSENS_ACTUATORVEL)):
+        for name in names:
+            spec.add_sensor(name=f"{POWER_SENSOR_PREFIX}{kind}_{name}", type=sensor_type,
+                            objtype=mujoco.mjtObj.mjOBJ_ACTUATOR, objname=name)
+    return spec
+
+
+def power_sensor_slices(model: mujoco.MjModel) -> tuple[slice, slice]:
+    """Where in sensordata ``with_power_sensors`` put the actuators' forces and velocities."""
+    def first(kind: str) -> int:
+        index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, f"{POWER_SENSOR_PREFIX}{kind}_{model.actuator(0).name}")
+        if index < 0:
+            raise ValueError("the model has no actuator power sensors (models come from load_model)")
+        return int(model.sensor_adr[index])
+    force, velocity = first("force"), first("velocity")
+    return slice(force, force + model.nu), slice(velocity, velocity + model.nu)
+
+
+def positive_power(force, velocity):
+    """The actuators' positive mechanical power, sum over actuators of max(0, force x velocity)
+    (W; NumPy or JAX arrays, actuators on the last axis): the numerator of the cost of
+    transport (Collins et al., Science 2005), counting no energy back from an actuator that
+    does negative work."""
+    return (force * velocity).clip(min=0).sum(axis=-1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,7 +103,10 @@ class Layout:
             return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
 
         def sensor(name: str) -> int:
-            return int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)])
+            index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+            if index < 0:
+                raise ValueError(f"the model has no sensor {name!r} (models come from load_model)")
+            return int(model.sensor_adr[index])
 
         def body_offset(name: str) -> float:
             return -float(model.body_pos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)][2])
@@ -104,6 +144,9 @@ class Sensors(NamedTuple):
     qpos: jax.Array
     qvel: jax.Array
     sensordata: jax.Array
+    # The actuators' positive mechanical work over the last control period (J): the power of
+    # every physics step (``positive_power``), not only the last's, times the step.
+    positive_work: jax.Array
 
 
 class Observation(NamedTuple):
@@ -119,6 +162,7 @@ class Observation(NamedTuple):
     forward_position: jax.Array
     uprightness: jax.Array   # ground truth: z component of the pelvis' up axis
     heading: jax.Array       # ground truth: pelvis yaw about the world's z (rad, to the left > 0)
+    positive_work: jax.Array  # ground truth: the actuators' over the last control period (J, ``Sensors``)
 
 
 def observe(layout: Layout, sensors: Sensors) -> Observation:
@@ -139,4 +183,6 @@ def observe(layout: Layout, sensors: Sensors) -> Observation:
         forward_position=qpos[0],
         uprightness=1 - 2 * (qx * qx + qy * qy),
         heading=jnp.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz)),
+        positive_work=sensors.positive_work,
     )
+

@@ -99,7 +99,8 @@ class Pool {
 // (the servo targets), or NaN where MuJoCo diverged (its clock did not advance by the control
 // period, or the state is not finite).
 void StepRows(const mjModel* m, mjData* d, const int64_t* rows, int64_t count, int64_t substeps,
-              const float* state_in, const float* ctrl_in, float* state_out, float* sensors_out) {
+              int64_t force_address, int64_t velocity_address, const float* state_in, const float* ctrl_in,
+              float* state_out, float* sensors_out, float* work_out) {
   const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
   const int nsensordata = m->nsensordata, nu = m->nu;
   std::vector<mjtNum> start(nstate), stepped(nstate), controls(nu);
@@ -119,9 +120,15 @@ void StepRows(const mjModel* m, mjData* d, const int64_t* rows, int64_t count, i
     mj_setState(m, d, start.data(), mjSTATE_FULLPHYSICS);
     mju_zero(d->qacc_warmstart, m->nv);
     for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
+    double work = 0.0;
     for (int64_t t = 0; t < substeps && !AnyWarning(d); t++) {
       mj_setState(m, d, controls.data(), mjSTATE_CTRL);
       mj_step(m, d);
+      // model.positive_power: sum over actuators of max(0, force x velocity), times the step.
+      for (int i = 0; i < nu; i++) {
+        work += std::max(0.0, d->sensordata[force_address + i] * d->sensordata[velocity_address + i]) *
+                m->opt.timestep;
+      }
     }
     mj_getState(m, d, stepped.data(), mjSTATE_FULLPHYSICS);
     double sum = 0.0;
@@ -132,6 +139,7 @@ void StepRows(const mjModel* m, mjData* d, const int64_t* rows, int64_t count, i
     for (int i = 0; i < nsensordata; i++) {
       sensors_row_out[i] = diverged ? NAN : static_cast<float>(d->sensordata[i]);
     }
+    work_out[r] = diverged ? NAN : static_cast<float>(work);
   }
 }
 
@@ -141,10 +149,11 @@ void StepRows(const mjModel* m, mjData* d, const int64_t* rows, int64_t count, i
 // the pool's, or all by the calling thread if the pool's cannot be started: a batch whose
 // finished learners sit in one part of it still keeps every thread busy.  Calls are
 // serialised: they share the mjData and the pool.
-ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
+ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata, ffi::Buffer<ffi::F32> work,
                 ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
                 ffi::ResultBuffer<ffi::F32> physics_out, ffi::ResultBuffer<ffi::F32> sensordata_out,
-                int64_t model_address, int64_t datas, int64_t threads, int64_t substeps) {
+                ffi::ResultBuffer<ffi::F32> work_out, int64_t model_address, int64_t datas, int64_t threads,
+                int64_t substeps, int64_t force_address, int64_t velocity_address) {
   static std::mutex one_call_at_a_time;
   std::lock_guard<std::mutex> lock(one_call_at_a_time);
   const mjModel* m = reinterpret_cast<const mjModel*>(model_address);
@@ -152,7 +161,9 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
   const int64_t batch = active.element_count();
   const int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), nsensordata = m->nsensordata;
   if (physics.element_count() != batch * nstate || sensordata.element_count() != batch * nsensordata ||
-      ctrl.element_count() != batch * m->nu) {
+      work.element_count() != batch || ctrl.element_count() != batch * m->nu ||
+      force_address < 0 || velocity_address < 0 || force_address + m->nu > nsensordata ||
+      velocity_address + m->nu > nsensordata) {
     return ffi::Error::InvalidArgument("mjxcpg_mujoco_step: buffer sizes do not match the model");
   }
   if (physics_out->typed_data() != physics.typed_data()) {
@@ -161,6 +172,9 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
   if (sensordata_out->typed_data() != sensordata.typed_data()) {
     std::copy(sensordata.typed_data(), sensordata.typed_data() + batch * nsensordata,
               sensordata_out->typed_data());
+  }
+  if (work_out->typed_data() != work.typed_data()) {
+    std::copy(work.typed_data(), work.typed_data() + batch, work_out->typed_data());
   }
   std::vector<int64_t> live;
   for (int64_t r = 0; r < batch; r++) {
@@ -172,8 +186,9 @@ ffi::Error Step(ffi::Buffer<ffi::F32> physics, ffi::Buffer<ffi::F32> sensordata,
   auto block = [&](int64_t k) {
     try {
       const int64_t first = count * k / blocks, last = count * (k + 1) / blocks;
-      StepRows(m, data[k], live.data() + first, last - first, substeps, physics.typed_data(),
-               ctrl.typed_data(), physics_out->typed_data(), sensordata_out->typed_data());
+      StepRows(m, data[k], live.data() + first, last - first, substeps, force_address, velocity_address,
+               physics.typed_data(), ctrl.typed_data(), physics_out->typed_data(),
+               sensordata_out->typed_data(), work_out->typed_data());
     } catch (const std::exception&) {
       failed = true;
     }
@@ -194,10 +209,14 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(MjxcpgMujocoStep, Step,
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::PRED>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Attr<int64_t>("model")
                                   .Attr<int64_t>("datas")
                                   .Attr<int64_t>("threads")
-                                  .Attr<int64_t>("substeps"));
+                                  .Attr<int64_t>("substeps")
+                                  .Attr<int64_t>("force_address")
+                                  .Attr<int64_t>("velocity_address"));

@@ -36,7 +36,7 @@ def final_policy_gaits(sim, task, weights, seconds: float = WALK_SECONDS,
     trace = walk.walk_from_standing(sim, actor_feedback(task), jax.device_get(weights), seconds,
                                     hand_seconds=hand_seconds)
     settle = max(walk.SETTLE_SECONDS, hand_seconds)
-    return [g.as_dict() for g in walk.summarise(trace, sim.control_dt, settle_s=settle)]
+    return [g.as_dict() for g in walk.summarise(trace, sim.control_dt, sim.layout.weight, settle_s=settle)]
 
 
 def table1(results: list[dict]) -> str:
