@@ -1,16 +1,18 @@
 """The controller's reflexes beyond the paper's: the heading reflex (a turn per step, through
-the swing leg's hip yaw) and the slope reflex (the pelvis pitch integrated into the ankles)."""
+the swing leg's hip yaw), the slope reflex (the pelvis pitch integrated into the ankles) and
+the slope posture (the pelvis turned toward upright on an incline)."""
 
 import dataclasses
 import math
 
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 from mjxcpg.control import walk
 from mjxcpg.control.controller import (ControllerParams, hand_feedback, heading_reflex, joint_targets,
-                                       slope_reflex)
+                                       posture_ankle_pitch, slope_reflex)
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.physics.model import Observation
 
@@ -85,3 +87,24 @@ def test_heading_reflex_walks_a_turned_robot_back_to_its_course(sim):
         w, x, y, z = np.asarray(trace.qpos[0, -1, 3:7])
         final[gain] = math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
     assert abs(final[0.6]) < 5.0 and final[0.0] > 15.0, final
+
+
+@pytest.mark.parametrize("posture", [0.0, 0.5, 1.0])
+def test_slope_posture_turns_the_pelvis_and_keeps_the_soles_flat(posture):
+    """On a 6-degree incline the standing pose's pelvis is pitched by -(1 - posture) x 6
+    degrees (tilted with the floor at 0, level at 1), each sole's corner spheres all lie 1 mm
+    above the floor (the sole flat on it), and the controller holds the ankles pitched by
+    -posture x 6 degrees."""
+    slope = math.radians(6.0)
+    params = ControllerParams(slope_posture=posture)
+    sim = make_simulation("mujoco", slope_deg=6.0, params=params)
+    data = mujoco.MjData(sim.model)
+    data.qpos[:] = sim.qpos0
+    mujoco.mj_kinematics(sim.model, data)
+    w, _, y, _ = sim.qpos0[3:7]
+    assert 2 * math.atan2(-y, w) == pytest.approx(slope * (1 - posture), abs=1e-9)  # pitched back uphill
+    spheres = [g for g in np.flatnonzero(sim.model.geom_contype != 0) if sim.model.geom_bodyid[g] != 0]
+    heights = [(data.geom_xpos[g][2] - data.geom_xpos[g][0] * math.tan(slope)) * math.cos(slope)
+               - sim.model.geom_size[g][0] for g in spheres]
+    np.testing.assert_allclose(heights, 0.001, atol=2e-5)  # float32 joint angles from the IK
+    assert posture_ankle_pitch(params, sim.layout) == pytest.approx(-posture * slope)

@@ -8,6 +8,7 @@ reflex's integral).  It knows nothing of the engine that runs the robot.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import jax
@@ -43,6 +44,7 @@ class ControllerParams:
     max_turn: float = 0.3           # the heading reflex's turn limit (rad per step), inside the hips' +-0.5
     slope_reflex_s: float = 0.0     # the slope reflex's time constant (s); 0: off
     max_ankle_pitch: float = 0.2    # the slope reflex's limit (rad) on its ankle pitch offset
+    slope_posture: float = 0.0      # of an incline, the pelvis turned toward upright (0: tilted with the floor)
 
     @classmethod
     def of(cls, robot: RobotDescription, **overrides) -> "ControllerParams":
@@ -120,6 +122,19 @@ def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observat
     return jnp.clip(ankle_pitch + params.control_dt * rate, -params.max_ankle_pitch, params.max_ankle_pitch)
 
 
+def posture_ankle_pitch(params: ControllerParams, layout: Layout) -> float:
+    """The slope posture: on an incline of angle s, both ankles held pitched by -slope_posture
+    x s, so that a robot standing with its soles flat on the floor has its pelvis turned by
+    slope_posture x s from tilted-with-the-floor toward upright (``sim.standing_qpos`` starts it
+    so).  A robot reads s from its IMU at rest; here it is the floor's (``Layout.slope_tan``).
+
+    Tilted with the floor, the robot leans back uphill by the slope and falls backward from
+    +5 degrees before its gait settles; upright, it falls forward downhill from -4; halfway
+    (0.5) walks both ways (docs/evaluation.md).  Not in the paper; 0 by default.
+    """
+    return -params.slope_posture * math.atan(layout.slope_tan)
+
+
 def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array,
                   turn: jax.Array | float = 0.0, ankle_pitch: jax.Array | float = 0.0) -> jax.Array:
     """Eqs (4)-(7) and inverse kinematics: neuron outputs to the servo targets (nu,), a turn
@@ -155,5 +170,6 @@ def control_step(params: ControllerParams, layout: Layout, state: ControllerStat
     cpg_state = cpg.integrate(params.cpg, state.cpg, feedback, params.control_dt, params.cpg_substeps)
     ankle_pitch = slope_reflex(params, state.ankle_pitch, obs)
     q = cpg.output(cpg_state).at[4].add(propulsion_offset)
-    ctrl = joint_targets(params, layout, q, heading_reflex(params, obs), ankle_pitch)
+    ctrl = joint_targets(params, layout, q, heading_reflex(params, obs),
+                         ankle_pitch + posture_ankle_pitch(params, layout))
     return ControllerState(cpg_state, ankle_pitch), ctrl

@@ -14,6 +14,7 @@ from mjxcpg.control import ik
 from mjxcpg.control.controller import ControllerParams
 from mjxcpg.physics import engines, hardware
 from mjxcpg.physics.model import Layout, load_model
+from mjxcpg.robots.description import LEG_JOINTS
 
 ROBOTS = ("nominal", "hardware")  # the simulated robot; see mjxcpg.physics.hardware
 HARDWARE_PLATFORM = "qrio"         # the platform whose hardware mismatch mjxcpg.physics.hardware models
@@ -80,7 +81,7 @@ def build_simulation(spec: SimulationSpec) -> Simulation:
         raise ValueError(f"control period {spec.params.control_dt} s is not a whole number of "
                          f"physics steps of {model.opt.timestep} s")
     layout = Layout.of(model, description)
-    qpos0 = standing_qpos(model, layout, spec.params.x0, spec.params.z0)
+    qpos0 = standing_qpos(model, layout, spec.params.x0, spec.params.z0, spec.params.slope_posture)
     if spec.robot == "hardware":
         if spec.platform != HARDWARE_PLATFORM:
             raise ValueError(f"the hardware robot is a perturbed {HARDWARE_PLATFORM} (docs/hardware.md); "
@@ -95,22 +96,29 @@ def build_simulation(spec: SimulationSpec) -> Simulation:
     return Simulation(spec=spec, model=model, layout=layout, engine=physics_engine, qpos0=qpos0)
 
 
-def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: float) -> np.ndarray:
+def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: float,
+                  posture: float = 0.0) -> np.ndarray:
     """A standing pose with both ankles at (x0, leg_length) below the hips, the soles flat on
     the floor 1 mm above it.
 
     On an inclined floor the whole robot is tilted with it, as a robot that holds its soles
     parallel to its pelvis stands when set down on an incline: level, its soles would meet
-    the floor on an edge, one end in it and the other above it.
+    the floor on an edge, one end in it and the other above it.  With ``posture`` p
+    (``ControllerParams.slope_posture``) the pelvis is turned toward upright by p x slope
+    and both ankles pitched back by as much (``controller.posture_ankle_pitch``), the soles
+    still flat, the lowest sole corner 1 mm above the floor.
     """
     qpos = model.qpos0.copy()
     qpos[2] = layout.pelvis_height(leg_length) + 0.001
-    if layout.slope_tan != 0.0:
+    slope = math.atan(layout.slope_tan)
+    if slope != 0.0:
         # Rotated about the floor's origin as the floor is: uphill (+x) the robot leans back.
-        slope = math.atan(layout.slope_tan)
         qpos[0], qpos[2] = -qpos[2] * math.sin(slope), qpos[2] * math.cos(slope)
-        qpos[3:7] = [math.cos(slope / 2), 0.0, -math.sin(slope / 2), 0.0]
-    angles = np.asarray(ik.leg_joint_angles(jnp.float32(x0), jnp.float32(leg_length), layout.geometry))
+        tilt = slope * (1 - posture)
+        qpos[3:7] = [math.cos(tilt / 2), 0.0, -math.sin(tilt / 2), 0.0]
+    angles = np.array(ik.leg_joint_angles(jnp.float32(x0), jnp.float32(leg_length), layout.geometry))
+    if posture != 0.0 and slope != 0.0:
+        angles[LEG_JOINTS.index("ankle_pitch")] -= posture * slope
     for ctrl_ids in (layout.left_leg_ctrl, layout.right_leg_ctrl):
         for k, actuator in enumerate(ctrl_ids):
             joint = model.actuator_trnid[actuator, 0]
@@ -119,4 +127,17 @@ def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: 
         joint = model.actuator_trnid[actuator, 0]
         if actuator not in layout.left_leg_ctrl + layout.right_leg_ctrl:
             qpos[model.jnt_qposadr[joint]] = target
+    if posture != 0.0 and slope != 0.0:
+        qpos[2] -= (_floor_clearance(model, qpos, slope) - 0.001) / math.cos(slope)
     return qpos
+
+
+def _floor_clearance(model: mujoco.MjModel, qpos: np.ndarray, slope: float) -> float:
+    """The smallest distance, normal to the floor plane through the origin, from the floor to
+    the robot's colliding geoms (the soles' corner spheres)."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    colliding = [g for g in np.flatnonzero(model.geom_contype != 0) if model.geom_bodyid[g] != 0]
+    return min((data.geom_xpos[g][2] - data.geom_xpos[g][0] * math.tan(slope)) * math.cos(slope)
+               - model.geom_size[g][0] for g in colliding)

@@ -131,6 +131,7 @@ RANGES: dict[str, Range] = {
     "controller.max_turn": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "controller.slope_reflex_s": NON_NEGATIVE,
     "controller.max_ankle_pitch": dataclasses.replace(NON_NEGATIVE, high=0.5),
+    "controller.slope_posture": dataclasses.replace(NON_NEGATIVE, high=1.0),
     "physics_dt": POSITIVE,
     "basis_grid": dataclasses.replace(COUNT, low=2),
     "basis_width": POSITIVE,
@@ -256,7 +257,8 @@ ADDED_KEYS: tuple[dict[tuple[str, ...], Any], ...] = (
     {("learner", "unit_slope"): False}, {("platform",): robots.DEFAULT_PLATFORM},
     {("learner", "fall_impulse"): False}, {("learner", "mean_step_sigma_power"): 0.0},
     {("controller", "h_heading"): 0.0, ("controller", "max_turn"): 0.3,
-     ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2})
+     ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2},
+    {("controller", "slope_posture"): 0.0})
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
