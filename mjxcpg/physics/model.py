@@ -59,9 +59,11 @@ def with_power_sensors(spec: mujoco.MjSpec) -> mujoco.MjSpec:
 
 
 def power_sensor_slices(model: mujoco.MjModel) -> tuple[slice, slice]:
-    """Where in sensordata ``with_power_sensors`` put the actuators' forces and velocities."""
+    """Where in sensordata ``with_power_sensors`` put the actuators' forces and velocities
+    (each kind one sensor per actuator, in the actuators' order, one after another)."""
     def first(kind: str) -> int:
-        index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, f"{POWER_SENSOR_PREFIX}{kind}_{model.actuator(0).name}")
+        name = f"{POWER_SENSOR_PREFIX}{kind}_{model.actuator(0).name}"
+        index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
         if index < 0:
             raise ValueError("the model has no actuator power sensors (models come from load_model)")
         return int(model.sensor_adr[index])
