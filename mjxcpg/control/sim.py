@@ -116,8 +116,9 @@ def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: 
         qpos[0], qpos[2] = -qpos[2] * math.sin(slope), qpos[2] * math.cos(slope)
         tilt = slope * (1 - posture)
         qpos[3:7] = [math.cos(tilt / 2), 0.0, -math.sin(tilt / 2), 0.0]
+    turned = posture != 0.0 and slope != 0.0
     angles = np.array(ik.leg_joint_angles(jnp.float32(x0), jnp.float32(leg_length), layout.geometry))
-    if posture != 0.0 and slope != 0.0:
+    if turned:
         angles[LEG_JOINTS.index("ankle_pitch")] -= posture * slope
     for ctrl_ids in (layout.left_leg_ctrl, layout.right_leg_ctrl):
         for k, actuator in enumerate(ctrl_ids):
@@ -127,7 +128,7 @@ def standing_qpos(model: mujoco.MjModel, layout: Layout, x0: float, leg_length: 
         joint = model.actuator_trnid[actuator, 0]
         if actuator not in layout.left_leg_ctrl + layout.right_leg_ctrl:
             qpos[model.jnt_qposadr[joint]] = target
-    if posture != 0.0 and slope != 0.0:
+    if turned:
         qpos[2] -= (_floor_clearance(model, qpos, slope) - 0.001) / math.cos(slope)
     return qpos
 

@@ -126,7 +126,7 @@ def summarise(trace: Trace, control_dt: float, weight: float,
             fell=bool(fallen.any()), seconds=n * control_dt, mean_vx=mean_vx,
             mean_pelvis_height=float(np.mean(h[start:n])) if n > start else float("nan"),
             gait_period=period,
-            cost_of_transport=cost_of_transport(work, weight, float(x[n - 1] - x[start])) if span > 0 else None))
+            cost_of_transport=cost_of_transport(work, weight, float(x[n - 1] - x[start]))))
     return out
 
 

@@ -81,10 +81,13 @@ def summarise_return_map(result: dict) -> dict:
     by_ks: dict = defaultdict(list)
     cot_by_ks: dict = defaultdict(list)
     for r in good:
-        if not r["return_map"]["fell"] and _finite(r["return_map"]["mean_vx"]):
-            by_ks[r["k_s"]].append(r["return_map"]["mean_vx"])
-        if not r["return_map"]["fell"] and _finite(r["return_map"].get("cost_of_transport")):
-            cot_by_ks[r["k_s"]].append(r["return_map"]["cost_of_transport"])
+        rm = r["return_map"]
+        if rm["fell"]:
+            continue
+        if _finite(rm["mean_vx"]):
+            by_ks[r["k_s"]].append(rm["mean_vx"])
+        if _finite(rm.get("cost_of_transport")):
+            cot_by_ks[r["k_s"]].append(rm["cost_of_transport"])
     propelled = [r for r in good if r["k_s"] >= 1]
     lasting = [r for r in propelled if walk_lasts(r)]
     return dict(
