@@ -1,4 +1,4 @@
-# Two commands on a fresh machine: `make run` (the paper's sweep) and `make test`.
+# Two commands on a fresh machine: `make run` (the paper, reproduced into runs/paper/report.md) and `make test`.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	@touch $(STAMP)
 
 run: $(STAMP) osmesa compiler
-	$(BIN)/mjxcpg sweep --config paper --out runs/paper --resume
+	$(BIN)/mjxcpg reproduce --config paper --out runs/paper
 
 test: $(STAMP) osmesa compiler
 	$(BIN)/pytest -q

@@ -1,7 +1,7 @@
 """Write a run's final weights and trials to success to an .npz that any version reads, for
 ``bench/transfer_weights.py`` (which walks a few learners many times):
 
-    NPROC=1 .venv/bin/python bench/dump_final_weights.py runs/paper_mjx_today /tmp/w.npz
+    NPROC=1 .venv/bin/python bench/dump_final_weights.py runs/printed_mjx_today /tmp/w.npz
 
 A run whose checkpoint this version does not read (an older layout): run this script with
 the code that made the run, and walk the weights with this one.

@@ -7,7 +7,7 @@ By default the fractions are of the run's wall time from its first chunk's end t
 with ``--by finished``, of its learners: the first chunk after which at least that fraction
 of the batch had finished.
 
-    python bench/eta_accuracy.py [--by finished] runs/quick [runs/paper ...]
+    python bench/eta_accuracy.py [--by finished] runs/quick [runs/printed ...]
 
 A run resumed in several sessions counts the pauses between them as time left."""
 

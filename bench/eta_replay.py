@@ -9,7 +9,7 @@ predict (``progress.history_fall_rate``, the progress line's), or its fall rate 
 trials left of the learner that in fact had the most (the run's critical path), and the mean
 over the draws of the most trials any learner has left, which is what the batch waits for.
 
-    NPROC=1 .venv/bin/python bench/eta_replay.py runs/paper
+    NPROC=1 .venv/bin/python bench/eta_replay.py runs/printed
 """
 
 import sys

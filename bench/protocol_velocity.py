@@ -20,7 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import walk
-from mjxcpg.training import report, runs, stats
+from mjxcpg.report import learning as report
+from mjxcpg.training import runs, stats
 
 
 def main() -> None:

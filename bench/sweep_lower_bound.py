@@ -19,7 +19,7 @@ standing), and every recorded (state, servo targets) pair is stepped once; the f
 one measurement, so that they are compared on the same bound.  Run it on the machine that
 made the run, and on a quiet one.
 
-    NPROC=1 .venv/bin/python bench/sweep_lower_bound.py runs/paper [--periods 500]
+    NPROC=1 .venv/bin/python bench/sweep_lower_bound.py runs/printed [--periods 500]
 
 It also prints each run by phase: the chunks that ran at each batch width, their wall time
 and their bound.

@@ -29,7 +29,8 @@ from mjxcpg.control.controller import ControllerParams, roll_rate_feedback
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.jaxutil import xla
 from mjxcpg.learning.learner import TrialParams
-from mjxcpg.training import report, runs
+from mjxcpg.report import learning as report
+from mjxcpg.training import runs
 from mjxcpg.training.train import RunSpec
 
 LADDER = ((0.002, 0.004), (0.004, 0.008), (0.008, 0.008), (0.008, 0.016), (0.016, 0.016))

@@ -2,7 +2,7 @@
 both engines by this version's code (the run's config gives the set-up), for some learners
 only and as many walks as asked:
 
-    NPROC=1 .venv/bin/python bench/transfer_weights.py runs/paper_mjx_today /tmp/w.npz --learners 1 --walks 64
+    NPROC=1 .venv/bin/python bench/transfer_weights.py runs/printed_mjx_today /tmp/w.npz --learners 1 --walks 64
 """
 
 import argparse
@@ -14,7 +14,8 @@ import numpy as np
 
 from mjxcpg.evaluation import transfer
 from mjxcpg.learning.actor_critic import Weights
-from mjxcpg.training import report, runs
+from mjxcpg.report import learning as report
+from mjxcpg.training import runs
 
 
 def main() -> None:

@@ -3,23 +3,28 @@ notebooks (README, "Python API").  ``import mjxcpg`` then ``mjxcpg.sweep(...)``,
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
+import time
 from pathlib import Path
 from typing import Callable, Iterable
 
-from mjxcpg.evaluation import registry
-from mjxcpg.evaluation import report as evaluation_report
+from mjxcpg.evaluation import controls, online, registry
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.jaxutil import processes as jax_processes
-from mjxcpg.training import report as run_report
+from mjxcpg.report import document
+from mjxcpg.report import evaluation as evaluation_report
+from mjxcpg.report import learning as run_report
 from mjxcpg.training import checks, runs, train
 from mjxcpg.training.checkpoints import first_line
 from mjxcpg.training.config import load_spec, validate
+from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.runs import load_run
 from mjxcpg.training.train import RunSpec
 
-__all__ = ["RunSpec", "EvalParams", "load_spec", "sweep", "load_run", "evaluate_policies", "EVALUATIONS"]
+__all__ = ["RunSpec", "EvalParams", "load_spec", "sweep", "load_run", "evaluate_policies", "EVALUATIONS",
+           "reproduce", "ReproductionBudget"]
 
 EVALUATIONS = registry.NAMES  # in run order; transfer: on the hardware robot only
 
@@ -108,8 +113,167 @@ def evaluate_policies(run_dir: str | Path, learners: Iterable[int] | None = None
         runs.refuse_earlier_output(out, ("eval", "report.md"), force, "evaluation")
         context = registry.load_context(run_dir, learners, engine, robot, params, transfer_repeats)
         result = registry.evaluate_run(context, parts, progress)
+        result["command"] = eval_command(run_dir, learners, engine, robot, params, parts, transfer_repeats, out)
         table1_text = run_report.table1(train.learner_results(context.spec, context.state.learners))
         if (out / "eval").is_dir():  # the earlier evaluation's plots, which this one may not redraw
             shutil.rmtree(out / "eval")
-        summary = evaluation_report.write_eval_report(run_dir, result, registry.EVALUATIONS, out, table1_text)
+        summary = evaluation_report.write_evaluation(out, result)
+        document.write_report(out, run_dir, table1_text)
     return {"report": str(out / "report.md"), "engine": result["engine"], "robot": robot, **summary}
+
+
+def eval_command(run_dir: Path, learners, engine, robot: str, params: EvalParams, parts: list[str],
+                 transfer_repeats: int, out: Path) -> str:
+    """The ``mjxcpg eval`` command line that evaluates as these arguments do (the report's)."""
+    words = ["mjxcpg eval --run", str(run_dir)]
+    if learners is not None:
+        words += ["--learner", *map(str, learners)]
+    if engine is not None:
+        words += ["--engine", engine]
+    if robot != "nominal":
+        words += ["--robot", robot]
+    flags = ["seed", "hand_seconds"] + [o.field for e in registry.EVALUATIONS for o in e.options]
+    changed = [name for name, value in dataclasses.asdict(params).items() if value != getattr(EvalParams(), name)]
+    for name in changed:
+        if name in flags:
+            words += ["--" + name.replace("_", "-"), f"{getattr(params, name):g}"]
+    skipped = [name for name in EVALUATIONS if name not in parts and registry.applies(name, robot)]
+    if skipped:
+        words += ["--skip", *skipped]
+    if robot == "hardware" and transfer_repeats != 20:
+        words += ["--transfer-repeats", str(transfer_repeats)]
+    default_out = run_dir if robot == "nominal" else run_dir / robot
+    if out.resolve() != default_out.resolve():
+        words += ["--out", str(out)]
+    unflagged = [name for name in changed if name not in flags]
+    return " ".join(words) + (f" (and, from Python, EvalParams {', '.join(unflagged)})" if unflagged else "")
+
+
+# ---------------------------------------------------------------- the whole reproduction
+
+@dataclasses.dataclass(frozen=True)
+class ReproductionBudget:
+    """How much of each stage ``reproduce`` runs beyond the sweep (which runs its config whole)."""
+
+    controls: tuple[str, ...] = ("learning_off", "learning_off_min_sigma", "zero_feedback")
+    control_trials: int = 100           # each control learner's budget, as the 70-learner study's
+    transfer_repeats: int = 10          # walks per policy on the hardware robot, each with other noise
+    online_learners: int = 3            # at most this many of the policies failing on hardware learn on
+    online_trials: int = 200            # the paper's: walking within 200 trials on QRIO
+    eval_params: EvalParams = EvalParams()  # every evaluation's protocol (the Python API's to change)
+
+    def note(self) -> str:
+        return (f"controls {', '.join(self.controls)} with {self.control_trials} trials each; every evaluation "
+                f"of `mjxcpg eval`{'' if self.eval_params == EvalParams() else ' with other protocol constants'} from "
+                f"standing; {self.transfer_repeats} walks per policy on the hardware robot; "
+                f"online learning ({self.online_trials} trials) for at most {self.online_learners} of the "
+                "policies that do not walk there in every try.")
+
+
+STAGES = ("sweep", "controls", "eval", "hardware", "online", "report")
+
+
+def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str | None = None,
+              budget: ReproductionBudget = ReproductionBudget(), progress: bool = True) -> dict:
+    """The paper's experiments from learning to its last figure, into ``out``: the sweep of
+    ``config``, the controls beside it, every evaluation, the transfer to the hardware robot,
+    online learning there for the policies that fail, and ``out/report.md`` with them all.
+
+    Each stage is recorded in ``out/reproduce.json`` as it starts and ends.  Called again, a
+    finished stage is kept as it is and an interrupted one goes on (the sweep and the controls
+    from their checkpoints) or runs again: every stage is deterministic, so the results are
+    byte-identical to an uninterrupted run's.  A stage's output that this pipeline did not
+    start (an ``eval`` run by hand, say) is refused, not replaced."""
+    out = Path(out)
+    spec = load_spec(config)
+    for name in budget.controls:
+        controls.control_spec(spec, name, budget.control_trials)  # a bad control is refused before any run
+    record_path = out / document.PIPELINE_RECORD
+    command = f"mjxcpg reproduce --config {config} --out {out}" + "".join(
+        f" --{name.replace('_', '-')} {getattr(budget, name)}" for name in ("control_trials", "transfer_repeats",
+                                                                           "online_learners", "online_trials")
+        if getattr(budget, name) != getattr(ReproductionBudget(), name))
+    if record_path.is_file():
+        record = json.loads(record_path.read_text())
+        if record["config"] != config or record["budget"] != _budget_record(budget):
+            raise runs.RunError(f"{out} holds a reproduction of other settings ({record['command']}); use another --out")
+    else:
+        record = {"command": command, "config": config, "note": budget.note(),
+                  "budget": _budget_record(budget),
+                  "stages": {}, "commands": {}}
+    start = time.perf_counter()
+
+    def mark(stage: str, state: str, **commands) -> None:
+        record["stages"][stage] = state
+        record["commands"].update(commands)
+        if not (out / "config.json").is_file():
+            return  # before the sweep has made the run directory, which must hold nothing else
+        with runs.locked(out):
+            write_text_atomic(record_path, json.dumps(record, indent=1))
+
+    def begin(stage: str) -> bool:
+        """Whether ``stage`` is to run; False when it is finished.  Says which stage runs."""
+        if record["stages"].get(stage) == "finished":
+            return False
+        if progress:
+            minutes, seconds = divmod(int(time.perf_counter() - start), 60)
+            runs.notice(f"reproduce: stage {STAGES.index(stage) + 1} of {len(STAGES)}, {stage} "
+                        f"(this session {minutes} min {seconds} s so far)")
+        return True
+
+    if begin("sweep"):
+        mark("sweep", "started", sweep=f"mjxcpg sweep --config {config} --out {out}")
+        sweep(spec, out, engine, resume=(out / "config.json").is_file(), progress=progress)
+        mark("sweep", "finished")
+    if begin("controls"):
+        mark("controls", "started", controls=f"mjxcpg controls --run {out} --trials {budget.control_trials} "
+                                              f"--only {' '.join(budget.controls)}")
+        controls.run_controls(out, budget.controls, trials=budget.control_trials, engine=engine, resume=True,
+                              progress=progress)
+        mark("controls", "finished")
+    if begin("eval"):
+        again = record["stages"].get("eval") == "started"
+        mark("eval", "started")
+        evaluate_policies(out, engine=engine, params=budget.eval_params,
+                          parts=[p for p in EVALUATIONS if registry.applies(p, "nominal")], force=again,
+                          progress=_stage_lines(progress))
+        mark("eval", "finished")
+    if begin("hardware"):
+        again = record["stages"].get("hardware") == "started"
+        mark("hardware", "started")
+        evaluate_policies(out, engine=engine, robot="hardware", params=budget.eval_params, parts=["transfer"],
+                          transfer_repeats=budget.transfer_repeats, force=again, progress=_stage_lines(progress))
+        mark("hardware", "finished")
+    if begin("online"):
+        again = record["stages"].get("online") == "started"
+        mark("online", "started")
+        failing = failing_on_hardware(out)[:budget.online_learners]
+        for learner in failing:
+            target = out / "online" / f"learner{learner:02d}"
+            if (target / "online.json").is_file() and again:
+                continue  # learned on before the interruption
+            online.learn_online(out, learner, target, trials=budget.online_trials, engine=engine,
+                                force=again, progress=progress)
+        mark("online", "finished", online=f"mjxcpg learn --from {out} --learner K --robot hardware "
+                                          f"--trials {budget.online_trials} --out {out}/online/learnerKK "
+                                          f"(K: {', '.join(map(str, failing)) or 'none'})")
+    begin("report")
+    path = document.write_report(out, out)
+    mark("report", "finished")
+    return {"report": str(path), "wall_s": time.perf_counter() - start}
+
+
+def _budget_record(budget: ReproductionBudget) -> dict:
+    return json.loads(json.dumps(dataclasses.asdict(budget)))  # as reproduce.json holds it
+
+
+def _stage_lines(progress: bool) -> Callable[[str], None] | None:
+    return (lambda text: runs.notice(f"eval: {text}")) if progress else None
+
+
+def failing_on_hardware(run_dir: Path) -> list[int]:
+    """The learners of ``run_dir`` that succeeded in simulation and did not walk in every try on
+    the hardware robot (its ``hardware/eval/evaluation.json``), by index."""
+    transfer = json.loads((run_dir / "hardware" / "eval" / "evaluation.json").read_text())["transfer"]
+    return [r["learner"] for r in transfer["learners"]
+            if r["succeeded"] and r["walks_hardware"] < transfer["repeats"]]

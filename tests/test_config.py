@@ -28,6 +28,21 @@ def test_expansion_repeats_each_value_then_cycles_to_the_count():
     assert data == {"k_s": [1.0, 1.0, 2.0, 2.0, 1.0, 1.0], "seeds": [5, 6, 7, 8, 9, 10], "chunk_seconds": 4.0}
 
 
+def test_energy_gains_repeat_the_learners_with_the_same_seeds():
+    data = config.expand_learners({"k_s_values": [1.0, 2.0], "first_seed": 5, "k_e_values": [0.0, 3.0]})
+    assert data == {"k_s": [1.0, 2.0, 1.0, 2.0], "seeds": [5, 6, 5, 6], "k_e": [0.0, 0.0, 3.0, 3.0]}
+
+
+def test_the_energy_config_puts_each_k_e_beside_the_same_seeds_at_k_e_0():
+    spec = config.load_spec("energy")
+    cells = {}
+    for k_s, seed, k_e in zip(spec.k_s, spec.seeds, spec.k_e):
+        cells.setdefault(k_e, set()).add((k_s, seed))
+    assert set(cells) == {0.0, 1.0, 4.0} and len(cells[0.0]) == 30
+    assert cells[1.0] == cells[0.0] == cells[4.0]
+    assert {k for k, _ in cells[0.0]} == {2.0, 5.0, 10.0}
+
+
 def test_spelled_out_learners_pass_through():
     data = {"k_s": [1.0], "seeds": [3]}
     assert config.expand_learners(data) is data
@@ -42,6 +57,11 @@ def test_spelled_out_learners_pass_through():
     ("k_s_values = [1.0]\nseeds_per_k_s = 0\n", "seeds_per_k_s"),
     ("k_s_values = [1.0]\nfirst_seed = -1\n", "first_seed"),
     ("k_s_values = [1.0]\nlearners = 2.5\n", "learners"),
+    ("k_s_values = [1.0]\nk_e_values = [-1.0]\n", r"k_e_values\[0\]"),
+    ("k_s_values = [1.0]\nk_e_values = []\n", "k_e_values"),
+    ("k_s_values = [1.0]\nk_e = [1.0]\n", "k_e"),
+    ("k_s = [1.0, 2.0]\nseeds = [1, 2]\nk_e = [1.0]\n", "k_e"),
+    ("k_s = [1.0]\nseeds = [1]\nk_e = [-0.5]\n", r"k_e\[0\]"),
 ])
 def test_bad_generator_names_the_key(tmp_path, text, key):
     path = tmp_path / "bad.toml"

@@ -97,3 +97,14 @@ def test_cost_of_transport_of_a_steady_walk():
     gait = walk.summarise(trace, dt, weight, settle_s=1.0)[0]
     assert gait.cost_of_transport == pytest.approx(power / (weight * speed), rel=1e-6)
     assert walk.cost_of_transport(1.0, weight, 0.0) is None   # it did not go forward
+
+
+def test_the_energy_reward_is_eq_27_less_k_e_power_over_weight():
+    """r = k_H (h - h') + k_S v - k_E P / (m g), computed by hand: k_H 10, h' 0.2, h 0.21,
+    k_S 5, v 0.06, k_E 2, P 7.2 W on a robot of 72 N (P / (m g) = 0.1 m/s):
+    0.1 + 0.3 - 0.2 = 0.2; without an energy gain the paper's 0.4, whatever the power."""
+    from mjxcpg.learning.learner import TrialParams, reward
+
+    trial = TrialParams(k_h=10.0, h_ref=0.2)
+    assert float(reward(trial, 5.0, 0.21, 0.06, 2.0, 7.2 / 72.0)) == pytest.approx(0.2, abs=1e-12)
+    assert float(reward(trial, 5.0, 0.21, 0.06, None, 1e6)) == pytest.approx(0.4, abs=1e-12)

@@ -19,7 +19,8 @@ from test_monitoring import tensorboard_scalars
 from mjxcpg.cli import main
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.control import walk
-from mjxcpg.training import config, report, train
+from mjxcpg.report import learning as report
+from mjxcpg.training import config, train
 
 
 def test_sweep_writes_the_report(finished_quick, quick_spec):

@@ -119,8 +119,8 @@ def cmd_learn(args: argparse.Namespace) -> dict | None:
 
 
 def _learn_online(args: argparse.Namespace) -> dict:
-    """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.training.online)."""
-    from mjxcpg.training import online
+    """``learn --from DIR --learner K``: continue that learner on ``--robot`` (mjxcpg.evaluation.online)."""
+    from mjxcpg.evaluation import online
     from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     if args.k_s is not None or args.seed is not None or args.platform is not None:
@@ -164,7 +164,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict | None:
 
 
 def cmd_controls(args: argparse.Namespace) -> dict:
-    from mjxcpg.training import controls
+    from mjxcpg.evaluation import controls
 
     run_dir = Path(args.run)
     if not (run_dir / "summary.json").is_file():
@@ -220,3 +220,17 @@ def cmd_bench(args: argparse.Namespace) -> dict | None:
     print(bench.format_table(result["results"], result["skipped"], args.engines), file=table)
     print(bench.format_overheads(result["overheads"]), file=table)
     return result if args.json else None
+
+
+def cmd_reproduce(args: argparse.Namespace) -> dict:
+    """``reproduce``: the sweep, its controls, every evaluation, the hardware robot and online
+    learning on it, and one report (what ``make run`` runs)."""
+    from mjxcpg import api
+
+    budget = api.ReproductionBudget(**{name: getattr(args, name) for name in ("control_trials", "transfer_repeats",
+                                                                               "online_learners", "online_trials")
+                                       if getattr(args, name) is not None})
+    out = Path(args.out or f"runs/{Path(args.config).stem}")
+    result = api.reproduce(args.config, out, args.engine, budget, progress=not args.quiet)
+    print((out / "table1.md").read_text())
+    return result

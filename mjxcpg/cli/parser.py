@@ -6,11 +6,11 @@ import argparse
 from collections.abc import Callable
 
 import mjxcpg
-from mjxcpg.cli.commands import (cmd_bench, cmd_controls, cmd_eval, cmd_learn, cmd_render, cmd_sweep,
-                                 cmd_transfer, cmd_walk)
+from mjxcpg.cli.commands import (cmd_bench, cmd_controls, cmd_eval, cmd_learn, cmd_render, cmd_reproduce,
+                                 cmd_sweep, cmd_transfer, cmd_walk)
 from mjxcpg.training import checks
 
-DESCRIPTION = "The mjxcpg command line: walk, learn, sweep, controls, transfer, eval, render, bench."
+DESCRIPTION = "The mjxcpg command line: reproduce, walk, learn, sweep, controls, transfer, eval, render, bench."
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,8 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.physics.engines import ENGINES
     from mjxcpg.physics.model import MAX_SLOPE_DEG
     from mjxcpg.training.config import config_names, range_of
-    from mjxcpg.training.controls import CONTROLS
-    from mjxcpg.training.online import REWARD_SOURCES
+    from mjxcpg.evaluation.controls import CONTROLS
+    from mjxcpg.evaluation.online import REWARD_SOURCES
     from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     seconds = _number(checks.POSITIVE)
@@ -52,6 +52,28 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="mjxcpg", description=DESCRIPTION)
     parser.add_argument("--version", action="version", version=f"%(prog)s {mjxcpg.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+
+    from mjxcpg.api import ReproductionBudget
+
+    budget = ReproductionBudget()
+    rep = sub.add_parser("reproduce", help="the paper from learning to its last figure, into one report "
+                         "(make run): sweep, controls, eval, hardware robot, online learning")
+    rep.add_argument("--config", default="paper",
+                     help=f"the sweep's config ({', '.join(config_names())} or a .toml/.json path; default paper)")
+    rep.add_argument("--out", help="run directory (default: runs/CONFIG)")
+    rep.add_argument("--engine", choices=ENGINES, default=None, help="default: native on CPU, mjx on GPU/TPU")
+    rep.add_argument("--control-trials", type=count, default=None,
+                     help=f"trial budget of each control learner (default {budget.control_trials})")
+    rep.add_argument("--transfer-repeats", type=count, default=None,
+                     help=f"walks per policy on the hardware robot (default {budget.transfer_repeats})")
+    rep.add_argument("--online-learners", type=_number(checks.NON_NEGATIVE_COUNT), default=None,
+                     help=f"at most this many failing policies learn on the hardware robot (default "
+                          f"{budget.online_learners})")
+    rep.add_argument("--online-trials", type=count, default=None,
+                     help=f"trial budget of online learning (default {budget.online_trials})")
+    rep.add_argument("--quiet", action="store_true", help="no progress lines")
+    rep.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    rep.set_defaults(handler=cmd_reproduce)
 
     walk = sub.add_parser("walk", help="walk with a controller and report the gait")
     walk.add_argument("--controller", choices=("hand", "stepping", "in-place"), default=None,

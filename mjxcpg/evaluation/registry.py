@@ -1,9 +1,10 @@
 """Every evaluation ``mjxcpg eval`` can run, in the order it runs and reports them.
 
 An evaluation is one record: its name (a choice of ``--skip``), the ``EvalParams`` fields it
-owns (each one a flag of ``eval``), what it runs on a loaded run's chosen policies, the
-figures it adds to the summary, and its section of report.md with its plots.  Adding one is
-a module with those functions and its line in ``EVALUATIONS``.
+owns (each one a flag of ``eval``) and what it runs on a loaded run's chosen policies; its
+summary figures and its section of report.md are registered under the same name in
+``mjxcpg.report.evaluation.SECTIONS``.  Adding one is a module with those functions, its line
+in ``EVALUATIONS`` and its line in ``SECTIONS``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import jax
 import jax.numpy as jnp
 
 from mjxcpg.control.sim import Simulation
-from mjxcpg.evaluation import evaluate, report, transfer
+from mjxcpg.evaluation import evaluate, transfer
+from mjxcpg.report import evaluation as report
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.learning.learner import Task
 from mjxcpg.physics.model import MAX_SLOPE_DEG
@@ -65,25 +67,21 @@ def load_context(run_dir: Path, learners: Sequence[int] | None, engine: str | No
 
 @dataclasses.dataclass(frozen=True)
 class Evaluation:
-    """One evaluation: what it runs, what it adds to the summary and to report.md."""
+    """One evaluation: what it runs, with which options, on which robots."""
 
     name: str
     title: str                                          # its progress line
     run: Callable[[EvalContext], Any]                   # one result per learner, or one for the run
-    summarise: Callable[[dict], dict]                   # the summary's figures, from the whole result
-    section: Callable[[dict, dict, Path], list[str]]    # (result, summary, eval dir): report.md lines, plots written
     options: tuple[Option, ...] = ()
-    per_learner: bool = True    # its result is a list, one per learner, kept in each learner's row
     robots: tuple[str, ...] | None = None               # the robots it applies to; None: every one
 
     def applies_to(self, robot: str) -> bool:
         return self.robots is None or robot in self.robots
 
-    def holds(self, result: dict) -> bool:
-        """Whether ``result`` (``evaluate_run``'s) has this evaluation's results."""
-        if self.per_learner:
-            return bool(result["learners"]) and self.name in result["learners"][0]
-        return self.name in result
+    @property
+    def per_learner(self) -> bool:
+        """Whether its result is a list, one per learner, kept in each learner's row."""
+        return report.SECTIONS[self.name].per_learner
 
 
 _COUNT = checks.NON_NEGATIVE_COUNT
@@ -111,28 +109,30 @@ def evaluate_references(context: EvalContext) -> dict:
 EVALUATIONS: tuple[Evaluation, ...] = (
     Evaluation("return_map", "velocity and return map",
                lambda c: evaluate.evaluate_return_map(c.sim, c.task, c.weights, c.learners, c.params),
-               report.summarise_return_map, report.return_map_section,
                options=(Option("fixed_point_steps", _COUNT, "unperturbed gait cycles for velocity and fixed point"),
                         Option("perturbations", _COUNT, "return-map perturbations"))),
     Evaluation("slopes", "slopes",
                lambda c: evaluate.evaluate_slopes(c.sim, c.task, c.weights, c.learners, c.params, robot=c.robot),
-               report.summarise_slopes, report.slopes_section,
                options=(Option("slope_seconds", checks.POSITIVE, "walk on each slope this long"),
                         Option("max_slope_deg", dataclasses.replace(_COUNT, high=MAX_SLOPE_DEG),
                                "steepest inclination tried each way"))),
     Evaluation("pushes", "pushes",
                lambda c: evaluate.evaluate_pushes(c.sim, c.task, c.weights, c.learners, c.params),
-               report.summarise_pushes, report.pushes_section,
                options=(Option("push_rounds", _COUNT, "bisection rounds per push direction"),)),
     Evaluation("references", "the hand-designed feedback and a_5 = 0 in the same protocols",
-               evaluate_references, report.summarise_references, report.references_section, per_learner=False),
+               evaluate_references),
     Evaluation("transfer", "transfer: walks per policy on the hardware robot",
                lambda c: transfer.hardware_transfer(c.run_dir, engine=c.engine, learners=c.learners,
                                                     repeats=c.transfer_repeats, noise_seed=c.params.seed),
-               report.summarise_transfer, report.transfer_section, per_learner=False, robots=("hardware",)),
+               robots=("hardware",)),
 )
 
 NAMES = tuple(e.name for e in EVALUATIONS)
+
+
+def applies(name: str, robot: str) -> bool:
+    """Whether evaluation ``name`` runs on ``robot``."""
+    return next(e for e in EVALUATIONS if e.name == name).applies_to(robot)
 
 
 def _trial_walk_speeds(run_dir: Path) -> dict[int, float]:
@@ -150,7 +150,8 @@ def evaluate_run(context: EvalContext, names: Sequence[str] = NAMES,
     spec, book = context.spec, jax.device_get(context.state.learners.book)
     trial_walks = _trial_walk_speeds(context.run_dir)
     result = {"engine": context.sim.engine.name, "robot": context.robot, "params": dataclasses.asdict(context.params),
-              "learners": [{"learner": k, "k_s": spec.k_s[k], "seed": spec.seeds[k],
+              "learners": [{"learner": k, "k_s": spec.k_s[k], **({} if spec.k_e is None else {"k_e": spec.k_e[k]}),
+                            "seed": spec.seeds[k],
                             "succeeded": bool(book.trials_to_success[k] >= 0),
                             "trials": int(book.trial[k]),
                             "trial_walk_vx": trial_walks.get(k)} for k in context.learners]}

@@ -29,7 +29,8 @@ import numpy as np
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.physics import hardware
-from mjxcpg.training import files, report, runs, train
+from mjxcpg.report import learning as report
+from mjxcpg.training import files, runs, train
 
 ENGINES = ("native", "mjx")
 RELATIVE_PERTURBATION = 1e-6  # of each mean weight

@@ -106,6 +106,7 @@ class LearnerState(NamedTuple):
     kept: ac.Weights              # the weights at the end of the newest streak of success_streak fall-free trials
     book: Bookkeeping
     estimate: estimator.EstimatorState | None = None  # only with Task.estimator (no leaves otherwise)
+    k_e: jax.Array | None = None  # energy reward gain (``reward``); None: none, the paper's reward
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,9 +131,16 @@ class Task:
         return round(self.trial.trial_seconds / self.dt)
 
 
-def reward(trial: TrialParams, k_s: jax.Array, height: jax.Array, forward_velocity: jax.Array) -> jax.Array:
-    """Eq (27): r = k_H (h1 - h') + k_S v_x."""
-    return trial.k_h * (height - trial.h_ref) + k_s * forward_velocity
+def reward(trial: TrialParams, k_s: jax.Array, height: jax.Array, forward_velocity: jax.Array,
+           k_e: jax.Array | None = None, power_per_weight: jax.Array | float = 0.0) -> jax.Array:
+    """Eq (27): r = k_H (h1 - h') + k_S v_x; with an energy gain ``k_e`` the energy term in
+    the same form, r = k_H (h1 - h') + k_S v_x - k_E P / (m g), ``power_per_weight`` being
+    P / (m g) (m/s), P the actuators' positive mechanical power: over a walk at speed v the
+    term's mean is k_E times the cost of transport times v."""
+    r = trial.k_h * (height - trial.h_ref) + k_s * forward_velocity
+    if k_e is not None:  # None (a run without energy gains): the paper's reward, bit for bit
+        r = r - k_e * power_per_weight
+    return r
 
 
 def policy_input(obs: Observation) -> jax.Array:
@@ -164,7 +172,7 @@ def _handover_step(task: Task, uniform: jax.Array) -> jax.Array:
     return jnp.round((low + (high - low) * uniform) / task.dt).astype(jnp.int32)
 
 
-def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
+def init_learner(task: Task, k_s: float, seed: int, k_e: float | None = None) -> LearnerState:
     key, sub = jax.random.split(jax.random.PRNGKey(seed))
     k = task.basis.centers.shape[0]
     n = task.trial.max_trials
@@ -179,7 +187,7 @@ def init_learner(task: Task, k_s: float, seed: int) -> LearnerState:
             falls=jnp.zeros(n, bool), acting_steps=jnp.int32(0), distance=jnp.float32(0),
             abs_a5_sum=jnp.float32(0), velocities=jnp.zeros(n, jnp.float32),
             mean_abs_a5=jnp.zeros(n, jnp.float32), sigmas=jnp.zeros(n, jnp.float32)),
-        estimate=_initial_estimate(task),
+        estimate=_initial_estimate(task), k_e=None if k_e is None else jnp.float32(k_e),
     )
 
 
@@ -215,7 +223,8 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     height, forward_velocity, fell, estimate_state = measured_inputs(task, state, sensors, obs)
     alpha = task.dt / task.trial.velocity_filter_s
     filtered_vx = book.filtered_vx + alpha * (jnp.nan_to_num(forward_velocity) - book.filtered_vx)
-    r = reward(task.trial, state.k_s, height, filtered_vx)
+    r = reward(task.trial, state.k_s, height, filtered_vx, state.k_e,
+               obs.positive_work / (task.dt * task.layout.weight))
 
     frozen = is_done(task, state)
     acting = book.step >= book.handover
@@ -282,7 +291,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
         traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
         previous_basis=b, has_previous=acting & ~ended,
         noise=jnp.where(acting & ~ended, noise, 0.0), kept=kept, book=book,
-        estimate=tree_where(ended, _initial_estimate(task), estimate_state),
+        estimate=tree_where(ended, _initial_estimate(task), estimate_state), k_e=state.k_e,
     )
     return state, jnp.where(ended, home_ctrl, ctrl), ended
 

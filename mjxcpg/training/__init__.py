@@ -1,4 +1,3 @@
 """Training: many learners in lockstep (``train``), configs (``config``), run directories and
-checkpoints (``runs``), progress and TensorBoard events (``progress``, ``events``), a run's
-report (``report``, ``plots``, ``stats``), the controls beside it (``controls``) and online
-learning on the hardware robot (``online``)."""
+checkpoints (``runs``), progress and TensorBoard events (``progress``, ``events``) and the
+statistics of a run's results (``stats``)."""

@@ -102,6 +102,7 @@ def from_dict(cls: type, data: dict, prefix: str = "", base: Any = None) -> Any:
 RANGES: dict[str, Range] = {
     "k_s": FINITE,
     "seeds": SEED,
+    "k_e": NON_NEGATIVE,
     "learner.tau": POSITIVE,
     "learner.alpha": NON_NEGATIVE,
     "learner.kappa_c": POSITIVE,
@@ -164,6 +165,7 @@ def validate(spec: RunSpec) -> RunSpec:
     rules = [
         ("k_s", len(spec.k_s) > 0, "needs at least one learner"),
         ("seeds", len(spec.seeds) == len(spec.k_s), "needs one seed per k_s entry"),
+        ("k_e", spec.k_e is None or len(spec.k_e) == len(spec.k_s), "needs one energy gain per k_s entry"),
         ("trial.hand_seconds", spec.trial.hand_seconds[0] <= spec.trial.hand_seconds[1]
          < spec.trial.trial_seconds, "must be low <= high < trial_seconds"),
         ("trial.actor", spec.trial.actor in ACTORS, f"must be one of {', '.join(ACTORS)}"),
@@ -181,7 +183,7 @@ def validate(spec: RunSpec) -> RunSpec:
     return spec
 
 
-GENERATOR_KEYS = ("k_s_values", "seeds_per_k_s", "first_seed", "learners")
+GENERATOR_KEYS = ("k_s_values", "seeds_per_k_s", "first_seed", "learners", "k_e_values")
 
 
 def expand_learners(data: dict) -> dict:
@@ -190,16 +192,17 @@ def expand_learners(data: dict) -> dict:
 
     Each of ``k_s_values`` appears ``seeds_per_k_s`` times in a row; the whole sequence repeats
     until there are ``learners`` entries (default: one pass); learner i gets seed
-    ``first_seed + i``.
+    ``first_seed + i``.  With ``k_e_values``, those learners come once per energy gain k_E,
+    with the same k_s and seeds each time: each k_E > 0 beside the same seeds at k_E = 0.
     """
     given = [key for key in GENERATOR_KEYS if key in data]
     if not given:
         return data
     if "k_s_values" not in data:
         raise ValueError(f"{given[0]}: needs k_s_values")
-    for key in ("k_s", "seeds"):
+    for key in ("k_s", "seeds", "k_e"):
         if key in data:
-            raise ValueError(f"{key}: give either k_s and seeds or k_s_values, not both")
+            raise ValueError(f"{key}: give either k_s, seeds and k_e or k_s_values, not both")
     values = _check(data["k_s_values"], tuple[float, ...], "k_s_values")
     if not values:
         raise ValueError("k_s_values: needs at least one value")
@@ -210,8 +213,16 @@ def expand_learners(data: dict) -> dict:
     one_pass = [k for k in values for _ in range(per_value)]
     count = checks.check("learners", data.get("learners", len(one_pass)), COUNT)
     k_s = [one_pass[i % len(one_pass)] for i in range(count)]
+    seeds = list(range(first_seed, first_seed + count))
     rest = {key: value for key, value in data.items() if key not in GENERATOR_KEYS}
-    return {"k_s": k_s, "seeds": list(range(first_seed, first_seed + count)), **rest}
+    if "k_e_values" not in data:
+        return {"k_s": k_s, "seeds": seeds, **rest}
+    gains = _check(data["k_e_values"], tuple[float, ...], "k_e_values")
+    if not gains:
+        raise ValueError("k_e_values: needs at least one value")
+    for i, value in enumerate(gains):
+        checks.check(f"k_e_values[{i}]", value, RANGES["k_e"])
+    return {"k_s": k_s * len(gains), "seeds": seeds * len(gains), "k_e": [g for g in gains for _ in k_s], **rest}
 
 
 def config_names() -> list[str]:
@@ -258,7 +269,7 @@ ADDED_KEYS: tuple[dict[tuple[str, ...], Any], ...] = (
     {("learner", "fall_impulse"): False}, {("learner", "mean_step_sigma_power"): 0.0},
     {("controller", "h_heading"): 0.0, ("controller", "max_turn"): 0.3,
      ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2},
-    {("controller", "slope_posture"): 0.0})
+    {("controller", "slope_posture"): 0.0}, {("k_e",): None})
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:

@@ -34,6 +34,9 @@ class RunSpec:
 
     k_s: tuple[float, ...]
     seeds: tuple[int, ...]
+    # Energy reward gains k_E, one per learner (``mjxcpg.learning.learner.reward``); None: no
+    # energy term for any, the paper's reward.
+    k_e: tuple[float, ...] | None = None
     # The robot (mjxcpg.robots.PLATFORMS).  ``for_platform`` gives its controller and reward
     # height; a config that names a platform starts from those (mjxcpg.training.config).
     platform: str = robots.DEFAULT_PLATFORM
@@ -74,7 +77,8 @@ def make_task(sim: Simulation, spec: RunSpec) -> Task:
 
 
 def init_run(sim: Simulation, task: Task, spec: RunSpec) -> RunState:
-    learners = [init_learner(task, k, s) for k, s in zip(spec.k_s, spec.seeds)]
+    gains = spec.k_e if spec.k_e is not None else (None,) * spec.batch
+    learners = [init_learner(task, k, s, e) for k, s, e in zip(spec.k_s, spec.seeds, gains)]
     return RunState(physics=sim.engine.init(sim.qpos0, spec.batch),
                     learners=jax.tree.map(lambda *xs: jnp.stack(xs), *learners))
 
@@ -205,8 +209,9 @@ def learner_results(spec: RunSpec, learners: LearnerState) -> list[dict]:
     for i in range(spec.batch):
         n = int(book.trial[i])
         tts = int(book.trials_to_success[i])
+        energy = {} if spec.k_e is None else {"k_e": spec.k_e[i]}  # a run without: its results as before
         out.append({
-            "k_s": spec.k_s[i], "seed": spec.seeds[i], "succeeded": tts >= 0,
+            "k_s": spec.k_s[i], **energy, "seed": spec.seeds[i], "succeeded": tts >= 0,
             "trials_to_success": tts if tts >= 0 else None, "trials": n,
             "returns": [float(x) for x in book.returns[i][:n]],
             "falls": [bool(x) for x in book.falls[i][:n]],

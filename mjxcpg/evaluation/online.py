@@ -27,7 +27,9 @@ import jax.numpy as jnp
 
 from mjxcpg.control.estimator import EstimatorParams
 from mjxcpg.learning.learner import init_learner
-from mjxcpg.training import config, plots, report, runs, train
+from mjxcpg.report import learning as report
+from mjxcpg.report import plots
+from mjxcpg.training import config, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 
@@ -35,8 +37,9 @@ REWARD_SOURCES = ("estimate", "truth")
 def continued_spec(spec: train.RunSpec, learner: int, trials: int, trial_seconds: float) -> train.RunSpec:
     """A one-learner spec for learner ``learner`` of ``spec``, with a new trial budget and length."""
     trial = dataclasses.replace(spec.trial, trial_seconds=trial_seconds, max_trials=trials)
+    k_e = None if spec.k_e is None else (spec.k_e[learner],)
     return config.validate(dataclasses.replace(spec, k_s=(spec.k_s[learner],), seeds=(spec.seeds[learner],),
-                                               trial=trial))
+                                               k_e=k_e, trial=trial))
 
 
 def learn_online(source: Path, learner: int, out: Path, trials: int = 400, robot: str = "hardware",
@@ -70,7 +73,8 @@ def _learn_online_locked(source: Path, learner: int, out: Path, trials: int, rob
     if reward == "estimate":
         task = dataclasses.replace(task, estimator=EstimatorParams.of(sim.model))
     weights = jax.tree.map(lambda w: w[learner], source_state.learners.weights)
-    fresh = init_learner(task, spec.k_s[0], spec.seeds[0])._replace(weights=weights)
+    fresh = init_learner(task, spec.k_s[0], spec.seeds[0], None if spec.k_e is None else spec.k_e[0])
+    fresh = fresh._replace(weights=weights)
     state = train.RunState(physics=sim.engine.init(sim.qpos0, 1),
                            learners=jax.tree.map(lambda x: x[None], fresh))
 

@@ -19,7 +19,8 @@ import dataclasses
 import json
 from pathlib import Path
 
-from mjxcpg.training import report, runs
+from mjxcpg.report import learning as report
+from mjxcpg.training import runs
 from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.train import RunSpec
 

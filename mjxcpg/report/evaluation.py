@@ -1,18 +1,21 @@
-"""What ``mjxcpg eval`` writes: evaluation.json, the evaluation plots and report.md, every
-figure beside the paper's.  Each evaluation has its summary figures (``summarise_*``) and its
-section of report.md with its plots (``*_section``); ``registry`` pairs them with its run."""
+"""The evaluations' part of a report: each evaluation's summary figures (``summarise_*``) and
+its section of report.md with its plots (``*_section``), every figure beside the paper's, all
+registered in ``SECTIONS`` under the evaluation's name (``mjxcpg.evaluation.registry`` pairs
+each with what it runs); ``write_evaluation`` writes eval/evaluation.json."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import defaultdict
 from pathlib import Path
-from typing import Sequence
+from typing import Callable
 
 import numpy as np
 
-from mjxcpg.evaluation import plots
-from mjxcpg.training.report import json_safe
+from mjxcpg.report import plots
+from mjxcpg.report.learning import json_safe
+from mjxcpg.training import stats
 
 PAPER_EIGENVALUE = -0.0101          # Fig 8, 50 perturbed steps
 PAPER_SLOPES_DEG = (3.0, -4.0)      # steady walking from +3 to -4 degrees
@@ -38,23 +41,15 @@ def base_summary(result: dict) -> dict:
     return {"learners": len(rows), "succeeded": sum(r["succeeded"] for r in rows)}
 
 
-def header(run_dir: Path, result: dict, summary: dict, table1_text: str | None) -> list[str]:
-    """report.md's title, what was evaluated and how, and Table 1."""
-    lines = [f"# Evaluation of `{run_dir}`", "",
-             f"Engine `{result['engine']}`, robot `{result['robot']}`, {len(result['learners'])} learner(s), "
+def evaluation_header(result: dict, summary: dict) -> list[str]:
+    """What was evaluated and how: the lines that open a report's evaluations."""
+    return [f"Engine `{result['engine']}`, robot `{result['robot']}`, {len(result['learners'])} learner(s), "
              f"{summary['succeeded']} of which succeeded in learning. Every policy is the final "
              "policy's mean (no exploration noise), walking from the standing pose"
              + (f" after {result['params']['hand_seconds']:g} s of the hand-designed feedback"
                 if result['params'].get('hand_seconds') else "")
              + "; all learners in one batch; deterministic by `--seed` "
              f"({result['params']['seed']}). Protocol and choices: `docs/evaluation.md`.", ""]
-    table = run_dir / "table1.md"
-    if table.is_file():
-        lines += ["## Table 1: learning", "", table.read_text().strip(), ""]
-    elif table1_text:
-        lines += ["## Table 1: learning (from the checkpoint; the run has no table1.md yet)", "",
-                  table1_text.strip(), ""]
-    return lines
 
 
 # ---------------------------------------------------------------- velocity and return map
@@ -90,13 +85,52 @@ def summarise_return_map(result: dict) -> dict:
             cot_by_ks[r["k_s"]].append(rm["cost_of_transport"])
     propelled = [r for r in good if r["k_s"] >= 1]
     lasting = [r for r in propelled if walk_lasts(r)]
-    return dict(
+    energy = {"energy_cells": energy_cells(result)} if any("k_e" in r for r in result["learners"]) else {}
+    return energy | dict(
         lasting_propelled=f"{len(lasting)}/{len(propelled)}",
         velocity_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(by_ks.items())},
         cost_of_transport_by_ks={f"{k:g}": float(np.mean(v)) for k, v in sorted(cot_by_ks.items())},
         eigenvalue_median=float(np.median(eig)) if eig else None,
         eigenvalue_range=[float(min(eig)), float(max(eig))] if eig else None,
         stable_successful=f"{len(stable)}/{len(good)}", paper_eigenvalue=PAPER_EIGENVALUE)
+
+
+def energy_cells(result: dict) -> list[dict]:
+    """Per (k_s, k_E) of a run with energy gains: learners, successes, and over the successful
+    ones that walk the unperturbed cycles, the mean speed and cost of transport with their 95%
+    intervals, and both as a fraction of the same k_s's k_E = 0 mean."""
+    cells = []
+    rows = result["learners"]
+    for k_s, k_e in sorted({(r["k_s"], r["k_e"]) for r in rows}):
+        rs = [r for r in rows if (r["k_s"], r["k_e"]) == (k_s, k_e)]
+        walking = [r["return_map"] for r in rs if r["succeeded"] and not r["return_map"]["fell"]]
+        cells.append({"k_s": k_s, "k_e": k_e, "learners": len(rs), "succeeded": sum(r["succeeded"] for r in rs),
+                      "walking": len(walking),
+                      "mean_vx": stats.mean_interval([w["mean_vx"] for w in walking]).as_dict(),
+                      "cost_of_transport": stats.mean_interval(
+                          [w["cost_of_transport"] for w in walking if _finite(w.get("cost_of_transport"))]).as_dict()})
+    for cell in cells:
+        base = next((c for c in cells if c["k_s"] == cell["k_s"] and c["k_e"] == 0), None)
+        for key in ("mean_vx", "cost_of_transport"):
+            ratio = cell[key]["value"] / base[key]["value"] if base and _finite(base[key]["value"]) else None
+            cell[f"{key}_of_k_e_0"] = ratio if _finite(ratio) else None
+    return cells
+
+
+def energy_lines(summary: dict) -> list[str]:
+    """The cost of transport against k_E, beside the same seeds at k_E = 0."""
+    lines = ["## Energy: the cost of transport against k_E", "",
+             "Per k_s and energy gain k_E (reward r - k_E P / (m g)), the successful policies that walk the "
+             "unperturbed cycles: mean speed and cost of transport with 95% bootstrap intervals over learners, "
+             "and each as a fraction of the same k_s and seeds at k_E = 0.", "",
+             "| k_s | k_E | successes | walking | speed (m/s) | of k_E = 0 | cost of transport | of k_E = 0 |",
+             "|---|---|---|---|---|---|---|---|"]
+    for c in summary["energy_cells"]:
+        speed, cot = stats.Estimate(**c["mean_vx"]), stats.Estimate(**c["cost_of_transport"])
+        lines.append(f"| {c['k_s']:g} | {c['k_e']:g} | {c['succeeded']}/{c['learners']} | {c['walking']} | "
+                     f"{speed.format('.3f')} | {_fmt(c['mean_vx_of_k_e_0'], '.2f')} | {cot.format('.2f')} | "
+                     f"{_fmt(c['cost_of_transport_of_k_e_0'], '.2f')} |")
+    return lines + [""]
 
 
 def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
@@ -123,8 +157,10 @@ def return_map_section(result: dict, summary: dict, eval_dir: Path) -> list[str]
         cost = summary.get("cost_of_transport_by_ks", {}).get(f"{k_s:g}")
         lines.append(f"| {k_s:g} | {len(ok)}/{sum(r['succeeded'] for r in by_ks[k_s])} | {_fmt(mean)} | "
                      f"{_fmt(cost, '.2f')} | {each} |")
-    lines += ["", "![velocity vs k_s](eval/velocity_vs_ks.png)", "",
-              "## Does the walk last?", "",
+    lines += ["", "![velocity vs k_s](eval/velocity_vs_ks.png)", ""]
+    if "energy_cells" in summary:
+        lines += energy_lines(summary)
+    lines += ["## Does the walk last?", "",
               f"Each policy's speed over the first and the second half of the same "
               f"{result['params']['fixed_point_steps']} unperturbed cycles, beside its speed in the run's "
               "own 20 s walk (summary.json, started as its trials were), and its heading's drift over "
@@ -310,26 +346,54 @@ def transfer_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
     return lines
 
 
-def write_eval_report(run_dir: Path, result: dict, evaluations: Sequence, out_dir: Path | None = None,
-                      table1_text: str | None = None) -> dict:
-    """``eval/evaluation.json``, the PNG plots under ``eval/`` and ``report.md``: every figure
-    beside the paper's, the plots embedded, and Table 1: the run's ``table1.md``, or else
-    ``table1_text`` (e.g. made from the checkpoint of a run still learning).
+@dataclasses.dataclass(frozen=True)
+class Section:
+    """An evaluation's part of the report: its summary figures, from the whole result, and its
+    report.md lines (given the result, the summary and the directory its plots go to)."""
 
-    ``evaluations`` are the registered ones (``registry.EVALUATIONS``), in report order; each
-    that ``result`` holds adds its summary figures and its section.  Written under ``out_dir``
-    (default: the run directory).  Returns the headline summary.
-    """
-    out_dir = out_dir or run_dir
+    summarise: Callable[[dict], dict]
+    render: Callable[[dict, dict, Path], list[str]]
+    per_learner: bool = True    # its result is one per learner, kept in each learner's row
+
+    def holds(self, name: str, result: dict) -> bool:
+        """Whether ``result`` has the results of evaluation ``name``."""
+        if self.per_learner:
+            return bool(result["learners"]) and name in result["learners"][0]
+        return name in result
+
+
+# In report order, which is the order the evaluations run in.
+SECTIONS: dict[str, Section] = {
+    "return_map": Section(summarise_return_map, return_map_section),
+    "slopes": Section(summarise_slopes, slopes_section),
+    "pushes": Section(summarise_pushes, pushes_section),
+    "references": Section(summarise_references, references_section, per_learner=False),
+    "transfer": Section(summarise_transfer, transfer_section, per_learner=False),
+}
+
+
+def summarise(result: dict) -> dict:
+    """The headline figures of every evaluation ``result`` holds."""
+    summary = base_summary(result)
+    for name, section in SECTIONS.items():
+        if section.holds(name, result):
+            summary.update(section.summarise(result))
+    return summary
+
+
+def write_evaluation(out_dir: Path, result: dict) -> dict:
+    """``out_dir/eval/evaluation.json``: the result with its summary.  Returns the summary."""
     eval_dir = out_dir / "eval"
     eval_dir.mkdir(parents=True, exist_ok=True)
-    present = [e for e in evaluations if e.holds(result)]
-    summary = base_summary(result)
-    for evaluation in present:
-        summary.update(evaluation.summarise(result))
+    summary = summarise(result)
     (eval_dir / "evaluation.json").write_text(json.dumps(json_safe({**result, "summary": summary}), indent=1))
-    lines = header(run_dir, result, summary, table1_text)
-    for evaluation in present:
-        lines += evaluation.section(result, summary, eval_dir)
-    (out_dir / "report.md").write_text("\n".join(lines))
     return summary
+
+
+def render_sections(result: dict, summary: dict, eval_dir: Path) -> list[str]:
+    """Every section ``result`` holds, in report order, its plots drawn into ``eval_dir``."""
+    lines = evaluation_header(result, summary)
+    for name, section in SECTIONS.items():
+        if section.holds(name, result):
+            lines += section.render(result, summary, eval_dir)
+    return lines

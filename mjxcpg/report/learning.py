@@ -12,7 +12,8 @@ import numpy as np
 
 from mjxcpg.control import walk
 from mjxcpg.learning.learner import actor_feedback
-from mjxcpg.training import plots, stats, train
+from mjxcpg.report import plots
+from mjxcpg.training import stats, train
 from mjxcpg.training.files import write_text_atomic
 
 # Table 1, simulation column: k_s -> (experiments, successes, mean trials to success)
@@ -39,18 +40,33 @@ def final_policy_gaits(sim, task, weights, seconds: float = WALK_SECONDS,
     return [g.as_dict() for g in walk.summarise(trace, sim.control_dt, sim.layout.weight, settle_s=settle)]
 
 
+def group_of(row: dict) -> tuple[float, float | None]:
+    """A learner's cell: its k_s and, in a run with energy gains, its k_E."""
+    return row["k_s"], row.get("k_e")
+
+
+def group_label(group: tuple[float, float | None]) -> str:
+    k_s, k_e = group
+    return f"{k_s:g}" if k_e is None else f"{k_s:g}, k_E {k_e:g}"
+
+
+def _sortable(group: tuple[float, float | None]) -> tuple[float, float]:
+    return group[0], -1.0 if group[1] is None else group[1]
+
+
 def table1(results: list[dict]) -> str:
     groups = defaultdict(list)
     for r in results:
-        groups[r["k_s"]].append(r)
+        groups[group_of(r)].append(r)
     lines = ["| k_s | experiments | successes | mean trials to success | paper: experiments | "
              "paper: successes | paper: mean trials |", "|---|---|---|---|---|---|---|"]
-    for k_s in sorted(groups):
-        rs = groups[k_s]
+    for group in sorted(groups, key=_sortable):
+        rs = groups[group]
         done = [r["trials_to_success"] for r in rs if r["succeeded"]]
         mean = f"{np.mean(done):.0f}" if done else "-"
-        paper = PAPER_TABLE1.get(k_s, ("-", "-", "-"))
-        lines.append(f"| {k_s:g} | {len(rs)} | {len(done)} | {mean} | {paper[0]} | {paper[1]} | {paper[2]} |")
+        paper = PAPER_TABLE1.get(group[0], ("-", "-", "-"))
+        lines.append(f"| {group_label(group)} | {len(rs)} | {len(done)} | {mean} | {paper[0]} | {paper[1]} | "
+                     f"{paper[2]} |")
     done = [r["trials_to_success"] for r in results if r["succeeded"]]
     lines.append(f"| all | {len(results)} | {len(done)} | {np.mean(done):.0f} | 27 | 20 | 696 |"
                  if done else f"| all | {len(results)} | 0 | - | 27 | 20 | 696 |")
@@ -66,7 +82,8 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
     learners = []
     for i, (r, g) in enumerate(zip(results, gaits)):
         learners.append({
-            "learner": i, "k_s": r["k_s"], "seed": r["seed"], "succeeded": r["succeeded"],
+            "learner": i, "k_s": r["k_s"], **({"k_e": r["k_e"]} if "k_e" in r else {}), "seed": r["seed"],
+            "succeeded": r["succeeded"],
             "trials_to_success": r["trials_to_success"], "trials": r["trials"],
             "mean_vx": g["mean_vx"], "final_policy_fell": g["fell"],
             "policy_input_gradient": plots.input_dominance(weights.mean[i], task.basis),
@@ -111,7 +128,8 @@ def learner_metrics(summary: dict, results: list[dict]) -> list[dict]:
     for learner, r in zip(summary["learners"], results, strict=True):
         returns, falls = np.asarray(r["returns"], float), np.asarray(r["falls"], float)
         rows.append({
-            "k_s": learner["k_s"], "succeeded": learner["succeeded"],
+            "k_s": learner["k_s"], **({"k_e": learner["k_e"]} if "k_e" in learner else {}),
+            "succeeded": learner["succeeded"],
             "trials_to_success": learner["trials_to_success"], "trials": learner["trials"],
             "fall_rate": float(falls.mean()) if falls.size else float("nan"),
             "mean_return": float(returns.mean()) if returns.size else float("nan"),
@@ -125,15 +143,15 @@ def arm_rows(label: str, rows: list[dict]) -> list[str]:
     """Table lines for one arm (the learners or a control): per k_s and all together, with
     95% bootstrap intervals over learners."""
     lines = []
-    groups = sorted({r["k_s"] for r in rows})
-    for k_s in groups + ["all"]:
-        rs = rows if k_s == "all" else [r for r in rows if r["k_s"] == k_s]
+    groups = sorted({group_of(r) for r in rows}, key=_sortable)
+    for group in groups + ["all"]:
+        rs = rows if group == "all" else [r for r in rows if group_of(r) == group]
         done = [r["trials_to_success"] for r in rs if r["succeeded"]]
         cells = [stats.mean_interval(done).format(".0f")] + [
             stats.mean_interval([r[key] for r in rs]).format(spec)
             for key, spec in (("fall_rate", ".2f"), ("mean_return", ".2f"), ("final_return", ".2f"),
                               ("velocity_20s", ".3f"))]
-        name = "all" if k_s == "all" else f"{k_s:g}"
+        name = "all" if group == "all" else group_label(group)
         lines.append(f"| {label} | {name} | {len(done)}/{len(rs)} | " + " | ".join(cells) + " |")
     return lines
 
@@ -141,7 +159,8 @@ def arm_rows(label: str, rows: list[dict]) -> list[str]:
 def velocity_trend(rows: list[dict]) -> dict:
     """Fig 7 as numbers: each k_s's mean 20 s velocity with its interval, Spearman's rho
     between k_s and those means, and the least-squares slope of velocity on k_s over the
-    learners with its interval."""
+    learners with its interval; in a run with energy gains, over its k_E = 0 learners."""
+    rows = [r for r in rows if not r.get("k_e")]
     ks = sorted({r["k_s"] for r in rows})
     per_ks = {k: stats.mean_interval([r["velocity_20s"] for r in rows if r["k_s"] == k]) for k in ks}
     return {
