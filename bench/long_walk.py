@@ -17,6 +17,7 @@ seconds (after the first 2 s):
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 61 --seconds 100
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --controller hand --seconds 100
     NPROC=1 .venv/bin/python bench/long_walk.py runs/stats --learners 60 --set h_heading=1 --slope 3
+    NPROC=1 .venv/bin/python bench/long_walk.py runs/paper --controller hand --seconds 20 --robot harsh
 
 With ``--json FILE`` every window of every learner is also written there.
 """
@@ -32,6 +33,7 @@ import numpy as np
 
 from mjxcpg.control import cpg
 from mjxcpg.control.controller import control_step, hand_feedback
+from mjxcpg.control.sim import ROBOTS
 from mjxcpg.control.walk import has_fallen, initial_controller
 from mjxcpg.jaxutil import xla
 from mjxcpg.learning.learner import policy_mean_feedback
@@ -130,10 +132,11 @@ def main() -> None:
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
                         help="controller constants instead of the run's (ControllerParams fields)")
     parser.add_argument("--slope", type=float, default=0.0, help="floor slope (degrees, uphill > 0)")
+    parser.add_argument("--robot", choices=ROBOTS, default="nominal", help="the robot walked (docs/hardware.md)")
     args = parser.parse_args()
     spec, sim, task, state = runs.load_run(args.run)
     changes = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
-    sim = sim.rebuild(params=dataclasses.replace(sim.params, **changes), slope_deg=args.slope)
+    sim = sim.rebuild(params=dataclasses.replace(sim.params, **changes), slope_deg=args.slope, robot=args.robot)
     chosen = runs.check_learners(spec, args.learners)
     weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
     feedback = {"policy": policy_mean_feedback(task),

@@ -13,6 +13,7 @@ from typing import Callable, Iterable
 from mjxcpg.evaluation import controls, online, registry
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.jaxutil import processes as jax_processes
+from mjxcpg.physics import hardware
 from mjxcpg.report import document
 from mjxcpg.report import evaluation as evaluation_report
 from mjxcpg.report import learning as run_report
@@ -140,7 +141,7 @@ def eval_command(run_dir: Path, learners, engine, robot: str, params: EvalParams
     skipped = [name for name in EVALUATIONS if name not in parts and registry.applies(name, robot)]
     if skipped:
         words += ["--skip", *skipped]
-    if robot == "hardware" and transfer_repeats != 20:
+    if robot in hardware.MISMATCHES and transfer_repeats != 20:
         words += ["--transfer-repeats", str(transfer_repeats)]
     default_out = run_dir if robot == "nominal" else run_dir / robot
     if out.resolve() != default_out.resolve():
@@ -157,17 +158,22 @@ class ReproductionBudget:
 
     controls: tuple[str, ...] = ("learning_off", "learning_off_min_sigma", "zero_feedback")
     control_trials: int = 100           # each control learner's budget, as the 70-learner study's
-    transfer_repeats: int = 10          # walks per policy on the hardware robot, each with other noise
-    online_learners: int = 3            # at most this many of the policies failing on hardware learn on
+    transfer_repeats: int = 10          # walks per policy on each hardware robot, each with other noise
+    online_robot: str = "harsh"         # the hardware robot online learning repairs policies on
+    online_learners: int = 27           # at most this many of the policies failing there learn on
     online_trials: int = 200            # the paper's: walking within 200 trials on QRIO
     eval_params: EvalParams = EvalParams()  # every evaluation's protocol (the Python API's to change)
 
     def note(self) -> str:
         return (f"controls {', '.join(self.controls)} with {self.control_trials} trials each; every evaluation "
                 f"of `mjxcpg eval`{'' if self.eval_params == EvalParams() else ' with other protocol constants'} from "
-                f"standing; {self.transfer_repeats} walks per policy on the hardware robot; "
-                f"online learning ({self.online_trials} trials) for at most {self.online_learners} of the "
-                "policies that do not walk there in every try.")
+                f"standing; {self.transfer_repeats} walks per policy on each hardware robot ({', '.join(HARDWARE_ROBOTS)}); "
+                f"online learning ({self.online_trials} trials) on the `{self.online_robot}` robot for at most "
+                f"{self.online_learners} of the policies that do not walk there in every try, beside the same "
+                "trials with learning off.")
+
+
+HARDWARE_ROBOTS = tuple(hardware.MISMATCHES)  # every robot the hardware stage walks the policies on
 
 
 STAGES = ("sweep", "controls", "eval", "hardware", "online", "report")
@@ -186,12 +192,15 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
     start (an ``eval`` run by hand, say) is refused, not replaced."""
     out = Path(out)
     spec = load_spec(config)
+    if budget.online_robot not in HARDWARE_ROBOTS:
+        raise ValueError(f"unknown hardware robot {budget.online_robot!r}; choose one of {', '.join(HARDWARE_ROBOTS)}")
     for name in budget.controls:
         controls.control_spec(spec, name, budget.control_trials)  # a bad control is refused before any run
     record_path = out / document.PIPELINE_RECORD
     command = f"mjxcpg reproduce --config {config} --out {out}" + "".join(
         f" --{name.replace('_', '-')} {getattr(budget, name)}" for name in ("control_trials", "transfer_repeats",
-                                                                           "online_learners", "online_trials")
+                                                                           "online_robot", "online_learners",
+                                                                           "online_trials")
         if getattr(budget, name) != getattr(ReproductionBudget(), name))
     if record_path.is_file():
         record = json.loads(record_path.read_text())
@@ -241,22 +250,27 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
     if begin("hardware"):
         again = record["stages"].get("hardware") == "started"
         mark("hardware", "started")
-        evaluate_policies(out, engine=engine, robot="hardware", params=budget.eval_params, parts=["transfer"],
-                          transfer_repeats=budget.transfer_repeats, force=again, progress=_stage_lines(progress))
+        for robot in HARDWARE_ROBOTS:
+            evaluate_policies(out, engine=engine, robot=robot, params=budget.eval_params, parts=["transfer"],
+                              transfer_repeats=budget.transfer_repeats, force=again,
+                              progress=_stage_lines(progress))
         mark("hardware", "finished")
     if begin("online"):
         again = record["stages"].get("online") == "started"
         mark("online", "started")
-        failing = failing_on_hardware(out)[:budget.online_learners]
-        for learner in failing:
-            target = out / "online" / f"learner{learner:02d}"
-            if (target / "online.json").is_file() and again:
-                continue  # learned on before the interruption
-            online.learn_online(out, learner, target, trials=budget.online_trials, engine=engine,
-                                force=again, progress=progress)
-        mark("online", "finished", online=f"mjxcpg learn --from {out} --learner K --robot hardware "
-                                          f"--trials {budget.online_trials} --out {out}/online/learnerKK "
-                                          f"(K: {', '.join(map(str, failing)) or 'none'})")
+        failing = failing_on_hardware(out, budget.online_robot)[:budget.online_learners]
+        commands = {}
+        for name, learning in (("online", True), ("online_control", False)):
+            target = out / name
+            words = (f"mjxcpg learn --from {out} --learner {' '.join(map(str, failing))} "
+                     f"--robot {budget.online_robot} --trials {budget.online_trials} --out {target}"
+                     + ("" if learning else " --no-learning"))
+            commands[name] = words if failing else ""
+            if not failing or ((target / "online.json").is_file() and again):
+                continue  # nothing to learn on, or learned before the interruption
+            online.learn_online(out, failing, target, trials=budget.online_trials, robot=budget.online_robot,
+                                engine=engine, learning=learning, force=again, progress=progress)
+        mark("online", "finished", **commands)
     begin("report")
     path = document.write_report(out, out)
     mark("report", "finished")
@@ -271,9 +285,9 @@ def _stage_lines(progress: bool) -> Callable[[str], None] | None:
     return (lambda text: runs.notice(f"eval: {text}")) if progress else None
 
 
-def failing_on_hardware(run_dir: Path) -> list[int]:
+def failing_on_hardware(run_dir: Path, robot: str = "hardware") -> list[int]:
     """The learners of ``run_dir`` that succeeded in simulation and did not walk in every try on
-    the hardware robot (its ``hardware/eval/evaluation.json``), by index."""
-    transfer = json.loads((run_dir / "hardware" / "eval" / "evaluation.json").read_text())["transfer"]
+    the hardware robot ``robot`` (its ``ROBOT/eval/evaluation.json``), by index."""
+    transfer = json.loads((run_dir / robot / "eval" / "evaluation.json").read_text())["transfer"]
     return [r["learner"] for r in transfer["learners"]
             if r["succeeded"] and r["walks_hardware"] < transfer["repeats"]]

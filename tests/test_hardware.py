@@ -17,7 +17,7 @@ from mjxcpg.cli import main
 from mjxcpg.control import estimator, walk
 from mjxcpg.control.controller import control_step, hand_feedback
 from mjxcpg.control.sim import make_simulation
-from mjxcpg.evaluation import transfer
+from mjxcpg.evaluation import online, transfer
 from mjxcpg.learning.learner import init_learner
 from mjxcpg.physics import engines, hardware
 from mjxcpg.physics.model import Sensors, load_model, observe
@@ -69,6 +69,27 @@ def test_hardware_simulation_keeps_the_nominal_controller():
     assert hw.model.body_mass.sum() != pytest.approx(nominal.model.body_mass.sum())
     with pytest.raises(ValueError, match="unknown robot"):
         make_simulation("mujoco", robot="qrio")
+
+
+def test_the_harsh_robot_is_what_docs_hardware_md_says():
+    """docs/hardware.md's harsh table, by hand: kp 90 N m/rad, friction 0.5, contact time
+    constant 0.04 s, 4 periods of latency, masses within 15%, and every mismatch beyond
+    the hardware robot's."""
+    nominal, harsh = make_simulation("mujoco"), make_simulation("mujoco", robot="harsh")
+    model = harsh.model
+    colliding = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    assert model.actuator_gainprm[:, 0] == pytest.approx(90.0)
+    assert model.geom_friction[colliding, 0] == pytest.approx(0.5)
+    assert model.geom_solref[colliding, 0] == pytest.approx(0.04)
+    assert harsh.engine.mismatch.latency_periods == 4
+    ratio = model.body_mass[1:] / nominal.model.body_mass[1:]
+    assert ratio.min() >= 0.85 and ratio.max() <= 1.15 and np.abs(ratio - 1).max() > 0.10
+    assert harsh.layout == nominal.layout
+    hw, hx = hardware.HARDWARE, hardware.HARSH
+    assert (hx.sole_friction < hw.sole_friction and hx.servo_kp_scale < hw.servo_kp_scale
+            and hx.latency_periods > hw.latency_periods and hx.contact_timeconst_scale > hw.contact_timeconst_scale)
+    # the hardware robot's floor is the nominal one's
+    assert make_simulation("mujoco", robot="hardware").model.geom_solref[colliding, 0] == pytest.approx(0.02)
 
 
 # ---------------------------------------------------------------- latency and noise
@@ -294,8 +315,23 @@ def test_online_learning_continues_on_hardware(learned_run, tmp_path, capsys):
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     record = json.loads((out / "online.json").read_text())
     assert printed["reward"] == record["reward"] == "estimate" and record["trial_seconds"] == 16.0
-    assert record["trials"] == len(record["returns"]) == len(record["falls"]) == 2
+    (row,) = record["learners"]
+    assert row["learner"] == 0 and row["trials"] == len(row["returns"]) == len(row["falls"]) == 2
     assert (out / "learning_curve.png").is_file()
     spec, _, _, state = runs.load_run(out, robot="hardware")
     assert spec.trial.trial_seconds == 16.0 and spec.k_s == (10.0,)
     assert state.learners.weights.mean.shape == (1, 225)
+
+
+@pytest.mark.slow
+def test_online_learning_off_keeps_the_weights_it_started_from(learned_run, tmp_path):
+    """The control: every learning rate 0, so the weights stay the source learner's, bit for
+    bit, while the trials run (two learners in one batch, the same one twice)."""
+    out = tmp_path / "online_off"
+    summary = online.learn_online(learned_run, [0, 0], out, trials=2, robot="harsh", learning=False,
+                                  progress=False, tensorboard=False)
+    assert summary["learning"] is False and summary["robot"] == "harsh"
+    _, _, _, source = runs.load_run(learned_run)
+    _, _, _, state = runs.load_run(out, robot="harsh")
+    for before, after in zip(jax.tree.leaves(source.learners.weights), jax.tree.leaves(state.learners.weights)):
+        np.testing.assert_array_equal(np.asarray(after), np.repeat(np.asarray(before)[:1], 2, axis=0))

@@ -19,7 +19,7 @@ BUDGET = api.ReproductionBudget(
     eval_params=api.EvalParams(fixed_point_steps=6, perturbations=3, slope_seconds=2.0, max_slope_deg=1,
                                push_rounds=1))
 RESULTS = ("summary.json", "returns.json", "stats.json", "table1.md", "report.md", "eval/evaluation.json",
-           "hardware/eval/evaluation.json", "controls/learning_off/returns.json",
+           "hardware/eval/evaluation.json", "harsh/eval/evaluation.json", "controls/learning_off/returns.json",
            "controls/learning_off_min_sigma/returns.json", "controls/zero_feedback/returns.json")
 
 
@@ -40,7 +40,8 @@ def test_the_report_has_every_section(reproduced):
     headings = [line for line in report.splitlines() if line.startswith("#")]
     for section in ("## Table 1: learning", "## Learning curves (Fig 4)", "## Policy maps (Fig 5)",
                     "## Velocity against k_s (Fig 7)", "## Return-map stability (Fig 8)", "## Slopes", "## Pushes",
-                    "## Transfer to the hardware robot", "## Online learning on the hardware robot"):
+                    "## Transfer to the hardware robot", "## Transfer to the `harsh` hardware robot",
+                    "## Online learning on the `harsh` hardware robot"):
         assert section in headings, section
     # every section says how to make it alone
     assert report.count("Alone: `mjxcpg ") >= 4
@@ -105,11 +106,17 @@ def test_an_evaluation_it_did_not_start_is_not_replaced(reproduced, tmp_path):
     assert (out / "report.md").read_text() == "the user's own evaluation\n"
 
 
-def test_the_online_section_lists_each_learner_as_online_json_holds_it(tmp_path):
-    """A hand-written online.json, as ``online.learn_online`` writes it, and its row."""
-    (tmp_path / "online" / "learner03").mkdir(parents=True)
-    (tmp_path / "online" / "learner03" / "online.json").write_text(json.dumps({
-        "learner": 3, "k_s": 4.0, "succeeded": True, "trials_to_success": 57, "trials": 57,
-        "falls_in_first_20": 6, "final_policy_walks_20s": True, "final_policy_mean_vx": 0.0612}))
+def test_the_online_section_lists_each_learner_beside_its_control(tmp_path):
+    """Hand-written online.json files, as ``online.learn_online`` writes them, and their row."""
+    row = {"learner": 3, "k_s": 4.0, "seed": 103, "succeeded": True, "trials_to_success": 57, "trials": 57,
+           "falls_in_first_20": 6, "final_policy_walks_20s": True, "final_policy_mean_vx": 0.0612}
+    for name, learner, succeeded in (("online", row, 1), ("online_control", row | {"succeeded": False,
+                                                                                   "trials": 200}, 0)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "online.json").write_text(json.dumps({
+            "robot": "harsh", "trials": 200, "succeeded": succeeded, "learners": [learner]}))
     lines = document.online_section(tmp_path, {"online": "mjxcpg learn --from RUN ..."})
-    assert "| 3 | 4 | 57 | 6 | yes | 0.061 |" in lines
+    assert "## Online learning on the `harsh` hardware robot" in lines
+    assert "| 3 | 4 | 57 | 6 | yes | 0.061 | not in 200 |" in lines
+    assert any(line.startswith("Met the criterion within 200 trials: **1 of 1** learning, 0 of 1 with learning off")
+               for line in lines)

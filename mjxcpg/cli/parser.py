@@ -65,9 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--control-trials", type=count, default=None,
                      help=f"trial budget of each control learner (default {budget.control_trials})")
     rep.add_argument("--transfer-repeats", type=count, default=None,
-                     help=f"walks per policy on the hardware robot (default {budget.transfer_repeats})")
+                     help=f"walks per policy on each hardware robot (default {budget.transfer_repeats})")
+    rep.add_argument("--online-robot", choices=ROBOTS[1:], default=None,
+                     help=f"the hardware robot of online learning (default {budget.online_robot}; docs/hardware.md)")
     rep.add_argument("--online-learners", type=_number(checks.NON_NEGATIVE_COUNT), default=None,
-                     help=f"at most this many failing policies learn on the hardware robot (default "
+                     help=f"at most this many failing policies learn on that robot (default "
                           f"{budget.online_learners})")
     rep.add_argument("--online-trials", type=count, default=None,
                      help=f"trial budget of online learning (default {budget.online_trials})")
@@ -124,9 +126,12 @@ def build_parser() -> argparse.ArgumentParser:
                        help="trial budget (default 1000; 400 with --from)")
     learn.add_argument("--from", dest="from_run", metavar="DIR",
                        help="continue learner --learner of this run (online additional learning)")
-    learn.add_argument("--learner", type=index, default=0, help="learner index within --from's run")
+    learn.add_argument("--learner", type=index, nargs="+", default=[0],
+                       help="learner indices within --from's run, learning on together (default 0)")
+    learn.add_argument("--no-learning", dest="learning", action="store_false",
+                       help="with --from: the control, the same trials with every learning rate 0")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
-                       help="robot to continue on with --from (hardware: docs/hardware.md)")
+                       help="robot to continue on with --from (hardware, harsh: docs/hardware.md)")
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,
                        help="with --from: reward from the robot's sensors (default on hardware) "
                             "or the simulator's state (default on nominal)")
@@ -186,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
     evaluation.add_argument("--seed", type=_number(checks.SEED), default=None,
-                            help="seed of the perturbations and, with --robot hardware, of the sensor noise "
+                            help="seed of the perturbations and, with --robot hardware or harsh, of the sensor noise "
                                  "(default 0)")
     evaluation.add_argument("--hand-seconds", type=_number(checks.NON_NEGATIVE), default=None,
                             help="hand-designed feedback first for this long, as at a learning trial's start "
@@ -200,10 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--skip", nargs="+", choices=tuple(e.name for e in EVALUATIONS),
                             help=f"evaluations to leave out ({only_on})")
     evaluation.add_argument("--transfer-repeats", type=count, default=None,
-                            help="with --robot hardware only: walks per policy, each with other sensor noise "
+                            help="with --robot hardware or harsh only: walks per policy, each with other sensor noise "
                                  "(default 20)")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
-                                           "with --robot hardware, its hardware/ subdirectory)")
+                                           "with --robot hardware or harsh, its subdirectory of that name)")
     evaluation.add_argument("--force", action="store_true", help="replace an earlier evaluation in OUT")
     evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
     evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")

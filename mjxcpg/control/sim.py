@@ -16,7 +16,7 @@ from mjxcpg.physics import engines, hardware
 from mjxcpg.physics.model import Layout, load_model
 from mjxcpg.robots.description import LEG_JOINTS
 
-ROBOTS = ("nominal", "hardware")  # the simulated robot; see mjxcpg.physics.hardware
+ROBOTS = ("nominal", *hardware.MISMATCHES)  # the simulated robot; see mjxcpg.physics.hardware
 HARDWARE_PLATFORM = "qrio"         # the platform whose hardware mismatch mjxcpg.physics.hardware models
 
 
@@ -63,7 +63,8 @@ def make_simulation(engine: str | None = None, slope_deg: float = 0.0,
     step unless ``physics_dt`` is.
 
     ``robot="hardware"`` simulates the perturbed robot of ``mjxcpg.physics.hardware`` (its model,
-    latency and sensor noise); the layout, hence the controller, stays the nominal one's.
+    latency and sensor noise), ``robot="harsh"`` its harsher variant; the layout, hence the
+    controller, stays the nominal one's.
     """
     return build_simulation(SimulationSpec(
         engine=engine or engines.default_engine(), platform=platform, slope_deg=float(slope_deg),
@@ -82,13 +83,14 @@ def build_simulation(spec: SimulationSpec) -> Simulation:
                          f"physics steps of {model.opt.timestep} s")
     layout = Layout.of(model, description)
     qpos0 = standing_qpos(model, layout, spec.params.x0, spec.params.z0, spec.params.slope_posture)
-    if spec.robot == "hardware":
+    if spec.robot in hardware.MISMATCHES:
         if spec.platform != HARDWARE_PLATFORM:
-            raise ValueError(f"the hardware robot is a perturbed {HARDWARE_PLATFORM} (docs/hardware.md); "
+            raise ValueError(f"the {spec.robot} robot is a perturbed {HARDWARE_PLATFORM} (docs/hardware.md); "
                              f"{spec.platform} has none")
-        model = hardware.perturbed_model(model)
+        mismatch = hardware.MISMATCHES[spec.robot]
+        model = hardware.perturbed_model(model, mismatch)
         physics_engine = hardware.HardwareEngine(
-            engines.make_engine(spec.engine, model, round(substeps), description.pelvis), robot=description)
+            engines.make_engine(spec.engine, model, round(substeps), description.pelvis), mismatch, description)
     elif spec.robot == "nominal":
         physics_engine = engines.make_engine(spec.engine, model, round(substeps), description.pelvis)
     else:

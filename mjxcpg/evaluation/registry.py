@@ -22,6 +22,7 @@ from mjxcpg.evaluation import evaluate, transfer
 from mjxcpg.report import evaluation as report
 from mjxcpg.evaluation.protocol import EvalParams
 from mjxcpg.learning.learner import Task
+from mjxcpg.physics import hardware
 from mjxcpg.physics.model import MAX_SLOPE_DEG
 from mjxcpg.training import checks, runs
 from mjxcpg.training.train import RunSpec
@@ -123,8 +124,9 @@ EVALUATIONS: tuple[Evaluation, ...] = (
                evaluate_references),
     Evaluation("transfer", "transfer: walks per policy on the hardware robot",
                lambda c: transfer.hardware_transfer(c.run_dir, engine=c.engine, learners=c.learners,
-                                                    repeats=c.transfer_repeats, noise_seed=c.params.seed),
-               robots=("hardware",)),
+                                                    repeats=c.transfer_repeats, noise_seed=c.params.seed,
+                                                    robot=c.robot),
+               robots=tuple(hardware.MISMATCHES)),
 )
 
 NAMES = tuple(e.name for e in EVALUATIONS)

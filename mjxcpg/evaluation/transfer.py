@@ -158,8 +158,9 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
 
 def hardware_transfer(run_dir: Path | str, seconds: float = 20.0, engine: str | None = None,
              learners: Sequence[int] | None = None, repeats: int = 1,
-             noise_seed: int = hardware.HARDWARE.noise_seed) -> dict:
-    """How many learned policies of a run walk ``seconds`` on the hardware robot.
+             noise_seed: int = hardware.HARDWARE.noise_seed, robot: str = "hardware") -> dict:
+    """How many learned policies of a run walk ``seconds`` on the hardware robot (or on
+    ``robot``, another of ``hardware.MISMATCHES``).
 
     Every chosen learner walks once on the nominal robot (deterministic) and ``repeats``
     times on the hardware robot, each time with other sensor noise, drawn from ``noise_seed``
@@ -170,15 +171,15 @@ def hardware_transfer(run_dir: Path | str, seconds: float = 20.0, engine: str | 
     those that walked in at least one.
     """
     nominal = walk_policies(run_dir, "nominal", seconds, engine, learners)
-    on_hardware = walk_policies(run_dir, "hardware", seconds, engine, learners, repeats, noise_seed)
+    on_hardware = walk_policies(run_dir, robot, seconds, engine, learners, repeats, noise_seed)
     rows = [{"learner": n["learner"], "k_s": n["k_s"], "seed": n["seed"], "succeeded": n["succeeded"],
              "walked_nominal": n["walked"], "mean_vx_nominal": n["mean_vx"],
              "walked_hardware": h["walked"], "walks_hardware": h["walks"],
              "seconds_hardware": h["seconds"], "mean_vx_hardware": h["mean_vx"]}
             for n, h in zip(nominal, on_hardware)]
     learned = [r for r in rows if r["succeeded"]]
-    mismatch = dataclasses.replace(hardware.HARDWARE, noise_seed=noise_seed)
-    return {"seconds": seconds, "repeats": repeats, "mismatch": dataclasses.asdict(mismatch),
+    mismatch = dataclasses.replace(hardware.MISMATCHES[robot], noise_seed=noise_seed)
+    return {"robot": robot, "seconds": seconds, "repeats": repeats, "mismatch": dataclasses.asdict(mismatch),
             "succeeded_in_simulation": len(learned),
             "walk_nominal": sum(r["walked_nominal"] for r in learned),
             "walk_hardware": sum(r["walked_hardware"] for r in learned),

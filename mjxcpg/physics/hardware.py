@@ -53,9 +53,15 @@ class HardwareMismatch:
     gyro_noise_std: float = 0.05        # rad/s, white, per axis and control period
     gyro_bias_std: float = 0.01         # rad/s, constant per robot and axis
     force_noise_std: float = 1.5        # N, white, per sole and control period
+    contact_timeconst_scale: float = 1.0  # sole-floor contact time constant x this: a softer floor above 1
 
 
 HARDWARE = HardwareMismatch()
+# A harsher robot on a softer floor, every value beyond ``HARDWARE``'s (``docs/hardware.md``).
+HARSH = HardwareMismatch(mass_spread=0.15, inertia_spread=0.15, sole_friction=0.5, servo_kp_scale=0.6,
+                         joint_damping_add=1.0, armature_scale=3.0, latency_periods=4, gyro_noise_std=0.1,
+                         gyro_bias_std=0.02, force_noise_std=3.0, contact_timeconst_scale=2.0)
+MISMATCHES = {"hardware": HARDWARE, "harsh": HARSH}  # the robots that stand in for a physical one
 
 
 def body_factors(model: mujoco.MjModel, mismatch: HardwareMismatch) -> tuple[np.ndarray, np.ndarray]:
@@ -71,7 +77,8 @@ def perturbed_model(model: mujoco.MjModel, mismatch: HardwareMismatch = HARDWARE
     """A copy of ``model`` with the hardware's mass, inertia, friction and servo mismatch.
 
     Friction of a contact is the larger of its two geoms', so every geom that collides (the
-    floor and the soles' contact points) gets ``sole_friction``.  Derived constants (subtree masses, the joint-space inertia at qpos0)
+    floor and the soles' contact points) gets ``sole_friction``; a contact's time constant
+    mixes its two geoms', so all of theirs are scaled.  Derived constants (subtree masses, the joint-space inertia at qpos0)
     are recomputed with ``mj_setConst``.
     """
     hw = copy.deepcopy(model)
@@ -80,6 +87,8 @@ def perturbed_model(model: mujoco.MjModel, mismatch: HardwareMismatch = HARDWARE
     hw.body_inertia[:] = model.body_inertia * inertia[:, None]
     colliding = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
     hw.geom_friction[colliding, 0] = mismatch.sole_friction
+    if mismatch.contact_timeconst_scale != 1.0:
+        hw.geom_solref[colliding, 0] = model.geom_solref[colliding, 0] * mismatch.contact_timeconst_scale
     hw.actuator_gainprm[:, 0] = model.actuator_gainprm[:, 0] * mismatch.servo_kp_scale
     hw.actuator_biasprm[:, 1] = model.actuator_biasprm[:, 1] * mismatch.servo_kp_scale
     hinge_dofs = model.jnt_dofadr[model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]

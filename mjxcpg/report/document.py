@@ -3,8 +3,9 @@ each beside the paper's figure and with the command that makes it alone.
 
 The sections, in order: Table 1 with the controls and Fig 7's numbers (``table1.md``), the
 learning curves (Fig 4) and policy maps (Fig 5) of the sweep, every evaluation of
-``eval/evaluation.json`` (``mjxcpg.report.evaluation.SECTIONS``), the transfer to the hardware
-robot (``hardware/eval/evaluation.json``) and online learning on it (``online/*/online.json``).
+``eval/evaluation.json`` (``mjxcpg.report.evaluation.SECTIONS``), the transfer to each hardware
+robot (``ROBOT/eval/evaluation.json``) and online learning on one, beside its control with
+learning off (``online/online.json``, ``online_control/online.json``).
 Whatever a directory lacks is left out, so ``mjxcpg eval`` and ``mjxcpg reproduce`` write
 the same report of what has been run.
 """
@@ -15,6 +16,7 @@ import json
 import os
 from pathlib import Path
 
+from mjxcpg.physics import hardware
 from mjxcpg.report import evaluation
 from mjxcpg.training.files import write_text_atomic
 
@@ -90,27 +92,38 @@ def evaluation_sections(eval_dir: Path, names: tuple[str, ...] | None = None) ->
     return evaluation.render_sections(saved, summary, eval_dir) + _command(command)
 
 
-def online_section(run_dir: Path, commands: dict) -> list[str]:
-    """Online additional learning on the hardware robot of the learners that failed there."""
-    results = sorted((json.loads(p.read_text()) for p in run_dir.glob("online/*/online.json")),
-                     key=lambda r: r["learner"])
-    record = commands.get("online")
-    if not results and record is None:
+def online_section(run_dir: Path, commands: dict, robot: str = "harsh") -> list[str]:
+    """Online additional learning on a hardware robot of the learners that failed there,
+    beside the same trials with learning off."""
+    learned, control = (_read_json(run_dir / name / "online.json") for name in ("online", "online_control"))
+    if learned is None and "online" not in commands:
         return []
-    lines = ["## Online learning on the hardware robot", "",
-             "Each policy that did not walk in every try on the hardware robot learns on there from its "
-             "final weights, with a reward from the robot's sensors alone (`docs/hardware.md`), until 20 "
-             f"successive trials without a fall. The paper: the failing policies walked within "
-             f"{PAPER_ONLINE_TRIALS} trials on QRIO.", ""]
-    if not results:
-        return lines + ["Every policy walked in every try on the hardware robot: none to learn on.", ""]
-    lines += ["| learner | k_s | trials to success | falls in its first 20 trials | final policy walks 20 s | "
-              "its velocity (m/s) |", "|---|---|---|---|---|---|"]
-    for r in results:
-        done = r["trials_to_success"] if r["succeeded"] else f"not in {r['trials']}"
-        lines.append(f"| {r['learner']} | {r['k_s']:g} | {done} | {r['falls_in_first_20']} | "
-                     f"{'yes' if r['final_policy_walks_20s'] else 'no'} | {r['final_policy_mean_vx']:.3f} |")
-    return lines + [""] + _command(record)
+    robot = (learned or {}).get("robot", robot)
+    lines = [f"## Online learning on the `{robot}` hardware robot", "",
+             f"Each policy that did not walk in every try on the `{robot}` robot learns on there from its final "
+             "weights, with a reward from the robot's sensors alone (`docs/hardware.md`), until 20 successive "
+             "trials without a fall; the control runs the same trials with learning off. The paper: the "
+             f"failing policies walked within {PAPER_ONLINE_TRIALS} trials on QRIO.", ""]
+    if learned is None:
+        return lines + [f"Every policy walked in every try on the `{robot}` robot: none to learn on.", ""]
+    others = {r["learner"]: r for r in (control or {"learners": []})["learners"]}
+    lines += [f"Met the criterion within {learned['trials']} trials: **{learned['succeeded']} of "
+              f"{len(learned['learners'])}** learning, "
+              + (f"{control['succeeded']} of {len(control['learners'])} with learning off." if control else
+                 "the control with learning off not run."), "",
+              "| learner | k_s | trials to success | falls in its first 20 trials | final policy walks 20 s | "
+              "its velocity (m/s) | learning off: trials to success |", "|---|---|---|---|---|---|---|"]
+
+    def done(r: dict) -> str:
+        return str(r["trials_to_success"]) if r["succeeded"] else f"not in {r['trials']}"
+
+    for r in learned["learners"]:
+        off = others.get(r["learner"])
+        velocity = "-" if r["final_policy_mean_vx"] is None else f"{r['final_policy_mean_vx']:.3f}"
+        lines.append(f"| {r['learner']} | {r['k_s']:g} | {done(r)} | {r['falls_in_first_20']} | "
+                     f"{'yes' if r['final_policy_walks_20s'] else 'no'} | {velocity} | "
+                     f"{done(off) if off else '-'} |")
+    return lines + [""] + _command(commands.get("online")) + _command(commands.get("online_control"))
 
 
 def write_report(out_dir: Path, run_dir: Path, table1_text: str | None = None) -> Path:
@@ -131,10 +144,11 @@ def write_report(out_dir: Path, run_dir: Path, table1_text: str | None = None) -
     if evaluated:
         lines += ["# The final policies, evaluated", ""] + evaluated
     if out_dir.resolve() == run_dir.resolve():
-        hardware = run_dir / "hardware" / "eval"
-        if hardware.is_dir():
-            lines += ["# On the hardware robot", ""] + evaluation_sections(hardware, names=("transfer",))
-        lines += online_section(run_dir, commands)
+        for robot in hardware.MISMATCHES:
+            transfer = run_dir / robot / "eval"
+            if transfer.is_dir():
+                lines += [f"# On the `{robot}` hardware robot", ""] + evaluation_sections(transfer, names=("transfer",))
+        lines += online_section(run_dir, commands, record.get("budget", {}).get("online_robot", "harsh"))
     path = out_dir / "report.md"
     write_text_atomic(path, "\n".join(lines))
     return path

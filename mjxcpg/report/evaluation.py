@@ -330,8 +330,9 @@ def summarise_transfer(result: dict) -> dict:
 def transfer_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
     """How many successful policies walk on the hardware robot, beside the paper's 14 of 20."""
     t = result["transfer"]
-    lines = ["## Transfer to the hardware robot", "",
-             f"Each successful policy walks {t['seconds']:g} s on the hardware robot "
+    robot = "hardware robot" if t.get("robot", "hardware") == "hardware" else f"`{t['robot']}` hardware robot"
+    lines = [f"## Transfer to the {robot}", "",
+             f"Each successful policy walks {t['seconds']:g} s on the {robot} "
              f"(`docs/hardware.md`) {t['repeats']} times, each with other sensor noise.", "",
              f"Walked in every try: **{t['walk_hardware']} of {t['succeeded_in_simulation']}**; "
              f"in at least one: {t['walk_hardware_any']}; on the nominal robot: {t['walk_nominal']}. "
