@@ -160,6 +160,7 @@ class ReproductionBudget:
     control_trials: int = 100           # each control learner's budget, as the 70-learner study's
     transfer_repeats: int = 10          # walks per policy on each hardware robot, each with other noise
     online_robot: str = "harsh"         # the hardware robot online learning repairs policies on
+    online_start: str = "standing"      # its trials from standing, as the transfer walks (online.STARTS)
     online_learners: int = 27           # at most this many of the policies failing there learn on
     online_trials: int = 200            # the paper's: walking within 200 trials on QRIO
     eval_params: EvalParams = EvalParams()  # every evaluation's protocol (the Python API's to change)
@@ -168,9 +169,9 @@ class ReproductionBudget:
         return (f"controls {', '.join(self.controls)} with {self.control_trials} trials each; every evaluation "
                 f"of `mjxcpg eval`{'' if self.eval_params == EvalParams() else ' with other protocol constants'} from "
                 f"standing; {self.transfer_repeats} walks per policy on each hardware robot ({', '.join(HARDWARE_ROBOTS)}); "
-                f"online learning ({self.online_trials} trials) on the `{self.online_robot}` robot for at most "
-                f"{self.online_learners} of the policies that do not walk there in every try, beside the same "
-                "trials with learning off.")
+                f"online learning ({self.online_trials} trials, {self.online_start} start) on the `{self.online_robot}` "
+                f"robot for at most {self.online_learners} of the policies that do not walk there in every try, "
+                "beside the same trials with learning off.")
 
 
 HARDWARE_ROBOTS = tuple(hardware.MISMATCHES)  # every robot the hardware stage walks the policies on
@@ -182,25 +183,29 @@ STAGES = ("sweep", "controls", "eval", "hardware", "online", "report")
 def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str | None = None,
               budget: ReproductionBudget = ReproductionBudget(), progress: bool = True) -> dict:
     """The paper's experiments from learning to its last figure, into ``out``: the sweep of
-    ``config``, the controls beside it, every evaluation, the transfer to the hardware robot,
-    online learning there for the policies that fail, and ``out/report.md`` with them all.
+    ``config``, the controls beside it, every evaluation, the transfer to each hardware robot,
+    online learning on ``budget.online_robot`` for the policies that fail there beside the
+    same trials with learning off, and ``out/report.md`` with them all.
 
-    Each stage is recorded in ``out/reproduce.json`` as it starts and ends.  Called again, a
-    finished stage is kept as it is and an interrupted one goes on (the sweep and the controls
-    from their checkpoints) or runs again: every stage is deterministic, so the results are
-    byte-identical to an uninterrupted run's.  A stage's output that this pipeline did not
-    start (an ``eval`` run by hand, say) is refused, not replaced."""
+    Each stage is recorded in ``out/reproduce.json`` as it starts and ends, with its wall
+    time.  Called again, a finished stage is kept as it is and an interrupted one goes on
+    (the sweep and the controls from their checkpoints) or runs again: every stage is
+    deterministic, so the results are byte-identical to an uninterrupted run's.  A stage's
+    output that this pipeline did not start (an ``eval`` run by hand, say) is refused, not
+    replaced."""
     out = Path(out)
     spec = load_spec(config)
     if budget.online_robot not in HARDWARE_ROBOTS:
         raise ValueError(f"unknown hardware robot {budget.online_robot!r}; choose one of {', '.join(HARDWARE_ROBOTS)}")
+    if budget.online_start not in online.STARTS:
+        raise ValueError(f"unknown online start {budget.online_start!r}; choose one of {', '.join(online.STARTS)}")
     for name in budget.controls:
         controls.control_spec(spec, name, budget.control_trials)  # a bad control is refused before any run
     record_path = out / document.PIPELINE_RECORD
     command = f"mjxcpg reproduce --config {config} --out {out}" + "".join(
         f" --{name.replace('_', '-')} {getattr(budget, name)}" for name in ("control_trials", "transfer_repeats",
-                                                                           "online_robot", "online_learners",
-                                                                           "online_trials")
+                                                                           "online_robot", "online_start",
+                                                                           "online_learners", "online_trials")
         if getattr(budget, name) != getattr(ReproductionBudget(), name))
     if record_path.is_file():
         record = json.loads(record_path.read_text())
@@ -210,11 +215,14 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
         record = {"command": command, "config": config, "note": budget.note(),
                   "budget": _budget_record(budget),
                   "stages": {}, "commands": {}}
-    start = time.perf_counter()
+    start = stage_start = time.perf_counter()
 
     def mark(stage: str, state: str, **commands) -> None:
         record["stages"][stage] = state
         record["commands"].update(commands)
+        if state == "finished":  # its wall time, summed over the calls that ran it
+            walls = record.setdefault("wall_s", {})
+            walls[stage] = round(walls.get(stage, 0.0) + time.perf_counter() - stage_start, 1)
         if not (out / "config.json").is_file():
             return  # before the sweep has made the run directory, which must hold nothing else
         with runs.locked(out):
@@ -222,12 +230,13 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
 
     def begin(stage: str) -> bool:
         """Whether ``stage`` is to run; False when it is finished.  Says which stage runs."""
+        nonlocal stage_start
         if record["stages"].get(stage) == "finished":
             return False
+        stage_start = time.perf_counter()
         if progress:
-            minutes, seconds = divmod(int(time.perf_counter() - start), 60)
             runs.notice(f"reproduce: stage {STAGES.index(stage) + 1} of {len(STAGES)}, {stage} "
-                        f"(this session {minutes} min {seconds} s so far)")
+                        f"(this session {_minutes(time.perf_counter() - start)} so far)")
         return True
 
     if begin("sweep"):
@@ -263,18 +272,28 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
         for name, learning in (("online", True), ("online_control", False)):
             target = out / name
             words = (f"mjxcpg learn --from {out} --learner {' '.join(map(str, failing))} "
-                     f"--robot {budget.online_robot} --trials {budget.online_trials} --out {target}"
+                     f"--robot {budget.online_robot} --start {budget.online_start} --trials {budget.online_trials} "
+                     f"--out {target}"
                      + ("" if learning else " --no-learning"))
             commands[name] = words if failing else ""
             if not failing or ((target / "online.json").is_file() and again):
                 continue  # nothing to learn on, or learned before the interruption
             online.learn_online(out, failing, target, trials=budget.online_trials, robot=budget.online_robot,
-                                engine=engine, learning=learning, force=again, progress=progress)
+                                engine=engine, learning=learning, start=budget.online_start, force=again,
+                                progress=progress)
         mark("online", "finished", **commands)
     begin("report")
     path = document.write_report(out, out)
     mark("report", "finished")
-    return {"report": str(path), "wall_s": time.perf_counter() - start}
+    if progress:
+        walls = ", ".join(f"{stage} {_minutes(seconds)}" for stage, seconds in record["wall_s"].items())
+        runs.notice(f"reproduce: {path} written; this session {_minutes(time.perf_counter() - start)}; "
+                    f"each stage's wall time, over every session that ran it: {walls}")
+    return {"report": str(path), "wall_s": time.perf_counter() - start, "stage_wall_s": record.get("wall_s", {})}
+
+
+def _minutes(seconds: float) -> str:
+    return f"{int(seconds) // 60} min {int(seconds) % 60} s"
 
 
 def _budget_record(budget: ReproductionBudget) -> dict:

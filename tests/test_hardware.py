@@ -22,6 +22,7 @@ from mjxcpg.learning.learner import init_learner
 from mjxcpg.physics import engines, hardware
 from mjxcpg.physics.model import Sensors, load_model, observe
 from mjxcpg.training import runs, train
+from mjxcpg.training.config import load_spec
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "hardware.md"
 
@@ -335,3 +336,17 @@ def test_online_learning_off_keeps_the_weights_it_started_from(learned_run, tmp_
     _, _, _, state = runs.load_run(out, robot="harsh")
     for before, after in zip(jax.tree.leaves(source.learners.weights), jax.tree.leaves(state.learners.weights)):
         np.testing.assert_array_equal(np.asarray(after), np.repeat(np.asarray(before)[:1], 2, axis=0))
+
+
+def test_online_trials_from_standing_hand_over_at_the_first_period():
+    """start="standing": the learner acts from the first control period of every trial, and
+    its final policy is walked from standing too; learning=False zeroes every rate."""
+    spec = load_spec("paper")
+    standing = online.continued_spec(spec, [4, 22], trials=200, trial_seconds=16.0, learning=False, start="standing")
+    assert standing.k_s == (1.0, 10.0) and standing.seeds == (4, 22)
+    assert standing.trial.hand_seconds == (0.0, 0.0) and standing.trial.walk_hand_seconds == 0.0
+    assert standing.trial.trials_after_success == 0 and standing.learner.rate_scale == 0.0
+    hand = online.continued_spec(spec, [4], trials=200, trial_seconds=16.0)
+    assert hand.trial.hand_seconds == spec.trial.hand_seconds and hand.learner == spec.learner
+    with pytest.raises(ValueError, match="unknown start"):
+        online.continued_spec(spec, [4], trials=200, trial_seconds=16.0, start="lying")

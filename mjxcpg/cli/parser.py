@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.physics.model import MAX_SLOPE_DEG
     from mjxcpg.training.config import config_names, range_of
     from mjxcpg.evaluation.controls import CONTROLS
-    from mjxcpg.evaluation.online import REWARD_SOURCES
+    from mjxcpg.evaluation.online import REWARD_SOURCES, STARTS
     from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     seconds = _number(checks.POSITIVE)
@@ -68,6 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"walks per policy on each hardware robot (default {budget.transfer_repeats})")
     rep.add_argument("--online-robot", choices=ROBOTS[1:], default=None,
                      help=f"the hardware robot of online learning (default {budget.online_robot}; docs/hardware.md)")
+    rep.add_argument("--online-start", choices=STARTS, default=None,
+                     help=f"how online trials start (default {budget.online_start})")
     rep.add_argument("--online-learners", type=_number(checks.NON_NEGATIVE_COUNT), default=None,
                      help=f"at most this many failing policies learn on that robot (default "
                           f"{budget.online_learners})")
@@ -130,6 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="learner indices within --from's run, learning on together (default 0)")
     learn.add_argument("--no-learning", dest="learning", action="store_false",
                        help="with --from: the control, the same trials with every learning rate 0")
+    learn.add_argument("--start", choices=STARTS, default=None,
+                       help="with --from: hand (the run's hand-designed start, the default) or standing "
+                            "(the policy from the first period)")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
                        help="robot to continue on with --from (hardware, harsh: docs/hardware.md)")
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,

@@ -11,6 +11,8 @@ with the learner and the trial protocol of their run except:
   (``mjxcpg.control.estimator``), not the simulator's state, unless ``reward="truth"``;
 * a fresh trial count and success criterion (20 successive trials without a fall), and
   learning stops at success;
+* with ``start="standing"``, every trial starts from standing with the policy acting from
+  the first period (no hand-designed start): the start is then part of what is learned;
 * with ``learning=False``, the control: the same trials, exploration noise included, with
   every learning rate 0.
 
@@ -38,13 +40,19 @@ from mjxcpg.report import plots
 from mjxcpg.training import config, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
+STARTS = ("hand", "standing")  # a trial starts with the run's hand-designed start, or from standing
 
 
 def continued_spec(spec: train.RunSpec, learners: Sequence[int], trials: int, trial_seconds: float,
-                   learning: bool = True) -> train.RunSpec:
+                   learning: bool = True, start: str = "hand") -> train.RunSpec:
     """The spec of ``learners`` of ``spec`` learning on, with a new trial budget and length,
-    ending at success; with ``learning=False`` every learning rate is 0."""
-    trial = dataclasses.replace(spec.trial, trial_seconds=trial_seconds, max_trials=trials, trials_after_success=0)
+    ending at success; with ``learning=False`` every learning rate is 0; with
+    ``start="standing"`` the policy takes over at the first period of every trial."""
+    if start not in STARTS:
+        raise ValueError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
+    hand = spec.trial.hand_seconds if start == "hand" else (0.0, 0.0)
+    trial = dataclasses.replace(spec.trial, trial_seconds=trial_seconds, max_trials=trials, trials_after_success=0,
+                                hand_seconds=hand)
     learner = spec.learner if learning else dataclasses.replace(spec.learner, rate_scale=0.0)
     k_e = None if spec.k_e is None else tuple(spec.k_e[k] for k in learners)
     return config.validate(dataclasses.replace(spec, k_s=tuple(spec.k_s[k] for k in learners),
@@ -54,18 +62,20 @@ def continued_spec(spec: train.RunSpec, learners: Sequence[int], trials: int, tr
 
 def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int = 400, robot: str = "hardware",
                  reward: str | None = None, engine: str | None = None, trial_seconds: float = 16.0,
-                 learning: bool = True, force: bool = False, progress: bool = True,
+                 learning: bool = True, start: str = "hand", force: bool = False, progress: bool = True,
                  tensorboard: bool = True) -> dict:
     """Continue ``learners`` of the run in ``source`` on ``robot``, together; write ``out``.
 
     ``reward``: "estimate" (the robot's sensors; the default on a hardware robot) or
     "truth" (the simulator's state; the default on the nominal one).  ``learning=False``
-    runs the control with learning off.
+    runs the control with learning off; ``start`` is one of ``STARTS``.
     Returns the summary that ``out/online.json`` holds, without the per-trial lists.
     """
     reward = reward or ("estimate" if robot in hardware.MISMATCHES else "truth")
     if reward not in REWARD_SOURCES:
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
+    if start not in STARTS:
+        raise ValueError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
     source_spec, _ = runs.read_config(source)  # a bad source is refused before ``out`` is made
     learners = runs.check_learners(source_spec, list(learners))
     if not learners:
@@ -75,15 +85,15 @@ def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int =
     with runs.locked(out):
         runs.clear_for_new_run(out, force)
         return _learn_online_locked(source, learners, out, trials, robot, reward, engine, trial_seconds, learning,
-                                    progress, tensorboard)
+                                    start, progress, tensorboard)
 
 
 def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: int, robot: str, reward: str,
-                         engine: str | None, trial_seconds: float, learning: bool, progress: bool,
-                         tensorboard: bool) -> dict:
+                         engine: str | None, trial_seconds: float, learning: bool, start: str,
+                         progress: bool, tensorboard: bool) -> dict:
     """``learn_online`` once ``out`` is locked and empty."""
     source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
-    spec = continued_spec(source_spec, learners, trials, trial_seconds, learning)
+    spec = continued_spec(source_spec, learners, trials, trial_seconds, learning, start)
     task = train.make_task(sim, spec)
     if reward == "estimate":
         task = dataclasses.replace(task, estimator=EstimatorParams.of(sim.model))
@@ -94,7 +104,8 @@ def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: i
     fresh = fresh._replace(weights=jax.tree.map(lambda w: w[rows], source_state.learners.weights))
     state = train.RunState(physics=sim.engine.init(sim.qpos0, len(learners)), learners=fresh)
 
-    origin = {"from": str(source), "learners": learners, "robot": robot, "reward": reward, "learning": learning}
+    origin = {"from": str(source), "learners": learners, "robot": robot, "reward": reward, "learning": learning,
+              "start": start}
     runs.write_record(out, spec, sim.engine.name, online=origin)
     start = time.perf_counter()
     state = runs.learn_to_end(out, sim, task, spec, state, None, progress, tensorboard)

@@ -125,7 +125,7 @@ EVALUATIONS: tuple[Evaluation, ...] = (
     Evaluation("transfer", "transfer: walks per policy on the hardware robot",
                lambda c: transfer.hardware_transfer(c.run_dir, engine=c.engine, learners=c.learners,
                                                     repeats=c.transfer_repeats, noise_seed=c.params.seed,
-                                                    robot=c.robot),
+                                                    robot=c.robot, hand_seconds=c.params.hand_seconds),
                robots=tuple(hardware.MISMATCHES)),
 )
 

@@ -123,11 +123,13 @@ def walk_on_engines(run_dir: Path, seconds: float = report.WALK_SECONDS, walks: 
 
 def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float = 20.0,
                   engine: str | None = None, learners: Sequence[int] | None = None,
-                  repeats: int = 1, noise_seed: int = hardware.HARDWARE.noise_seed) -> list[dict]:
+                  repeats: int = 1, noise_seed: int = hardware.HARDWARE.noise_seed,
+                  hand_seconds: float = 0.0) -> list[dict]:
     """Each chosen learner's final policy (its mean, no exploration noise) walking from the
     standing pose for ``seconds`` on ``robot``, ``repeats`` times (each walk its own batch
     row, hence on the hardware robot its own sensor-noise stream, drawn from ``noise_seed``),
-    all in one batch.
+    all in one batch; with ``hand_seconds`` > 0 the hand-designed feedback starts the walk,
+    as it starts every learning trial, and the speed is measured after it.
 
     Per learner: index, k_s, seed, whether learning succeeded in simulation, ``walks`` (how
     many of the repeats went ``seconds`` without a fall), ``walked`` (all of them did), the
@@ -142,8 +144,9 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
     chosen = runs.check_learners(spec, learners)
     rows = jnp.repeat(jnp.asarray(chosen), repeats)
     weights = jax.tree.map(lambda w: w[rows], state.learners.weights)
-    trace = walk.walk_from_standing(sim, actor_feedback(task), weights, seconds)
-    gaits = walk.summarise(trace, sim.control_dt, sim.layout.weight)
+    trace = walk.walk_from_standing(sim, actor_feedback(task), weights, seconds, hand_seconds=hand_seconds)
+    gaits = walk.summarise(trace, sim.control_dt, sim.layout.weight,
+                           settle_s=max(walk.SETTLE_SECONDS, hand_seconds))
     succeeded = np.asarray(state.learners.book.trials_to_success)[chosen] >= 0
     results = []
     for i, (k, ok) in enumerate(zip(chosen, succeeded)):
@@ -158,7 +161,8 @@ def walk_policies(run_dir: Path | str, robot: str = "hardware", seconds: float =
 
 def hardware_transfer(run_dir: Path | str, seconds: float = 20.0, engine: str | None = None,
              learners: Sequence[int] | None = None, repeats: int = 1,
-             noise_seed: int = hardware.HARDWARE.noise_seed, robot: str = "hardware") -> dict:
+             noise_seed: int = hardware.HARDWARE.noise_seed, robot: str = "hardware",
+             hand_seconds: float = 0.0) -> dict:
     """How many learned policies of a run walk ``seconds`` on the hardware robot (or on
     ``robot``, another of ``hardware.MISMATCHES``).
 
@@ -170,8 +174,8 @@ def hardware_transfer(run_dir: Path | str, seconds: float = 20.0, engine: str | 
     QRIO): ``walk_hardware`` counts policies that walked in every repeat, ``walk_hardware_any``
     those that walked in at least one.
     """
-    nominal = walk_policies(run_dir, "nominal", seconds, engine, learners)
-    on_hardware = walk_policies(run_dir, robot, seconds, engine, learners, repeats, noise_seed)
+    nominal = walk_policies(run_dir, "nominal", seconds, engine, learners, hand_seconds=hand_seconds)
+    on_hardware = walk_policies(run_dir, robot, seconds, engine, learners, repeats, noise_seed, hand_seconds)
     rows = [{"learner": n["learner"], "k_s": n["k_s"], "seed": n["seed"], "succeeded": n["succeeded"],
              "walked_nominal": n["walked"], "mean_vx_nominal": n["mean_vx"],
              "walked_hardware": h["walked"], "walks_hardware": h["walks"],
@@ -179,7 +183,7 @@ def hardware_transfer(run_dir: Path | str, seconds: float = 20.0, engine: str | 
             for n, h in zip(nominal, on_hardware)]
     learned = [r for r in rows if r["succeeded"]]
     mismatch = dataclasses.replace(hardware.MISMATCHES[robot], noise_seed=noise_seed)
-    return {"robot": robot, "seconds": seconds, "repeats": repeats, "mismatch": dataclasses.asdict(mismatch),
+    return {"robot": robot, "seconds": seconds, "hand_seconds": hand_seconds, "repeats": repeats, "mismatch": dataclasses.asdict(mismatch),
             "succeeded_in_simulation": len(learned),
             "walk_nominal": sum(r["walked_nominal"] for r in learned),
             "walk_hardware": sum(r["walked_hardware"] for r in learned),

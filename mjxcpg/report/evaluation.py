@@ -331,9 +331,11 @@ def transfer_section(result: dict, summary: dict, eval_dir: Path) -> list[str]:
     """How many successful policies walk on the hardware robot, beside the paper's 14 of 20."""
     t = result["transfer"]
     robot = "hardware robot" if t.get("robot", "hardware") == "hardware" else f"`{t['robot']}` hardware robot"
+    start = (f"its first {t['hand_seconds']:g} s with the hand-designed feedback, as its trials started"
+             if t.get("hand_seconds") else "from standing")
     lines = [f"## Transfer to the {robot}", "",
              f"Each successful policy walks {t['seconds']:g} s on the {robot} "
-             f"(`docs/hardware.md`) {t['repeats']} times, each with other sensor noise.", "",
+             f"(`docs/hardware.md`), {start}, {t['repeats']} times, each with other sensor noise.", "",
              f"Walked in every try: **{t['walk_hardware']} of {t['succeeded_in_simulation']}**; "
              f"in at least one: {t['walk_hardware_any']}; on the nominal robot: {t['walk_nominal']}. "
              f"The paper: {PAPER_HARDWARE[0]} of {PAPER_HARDWARE[1]} on the real QRIO.", "",
