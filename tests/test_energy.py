@@ -108,3 +108,24 @@ def test_the_energy_reward_is_eq_27_less_k_e_power_over_weight():
     trial = TrialParams(k_h=10.0, h_ref=0.2)
     assert float(reward(trial, 5.0, 0.21, 0.06, 2.0, 7.2 / 72.0)) == pytest.approx(0.2, abs=1e-12)
     assert float(reward(trial, 5.0, 0.21, 0.06, None, 1e6)) == pytest.approx(0.4, abs=1e-12)
+
+
+def test_the_energy_cells_give_power_over_weight_and_fractions_of_k_e_0():
+    from mjxcpg.report.evaluation import energy_cells
+
+    def learner(k_e, succeeded, fell, vx, cot):
+        return {"k_s": 2.0, "k_e": k_e, "succeeded": succeeded,
+                "return_map": {"fell": fell, "mean_vx": vx, "cost_of_transport": cot}}
+
+    # by hand: k_E = 0 walks 0.05 m/s at CoT 1.2 and 0.07 at 1.0 (P/(m g) 0.06, 0.07);
+    # k_E = 1 walks 0.06 at CoT 0.9; a failed and a fallen learner are left out
+    result = {"learners": [learner(0.0, True, False, 0.05, 1.2), learner(0.0, True, False, 0.07, 1.0),
+                           learner(1.0, True, False, 0.06, 0.9), learner(1.0, False, False, 0.2, 0.1),
+                           learner(1.0, True, True, 0.2, 0.1)]}
+    base, energy = energy_cells(result)
+    assert (base["learners"], base["succeeded"], base["walking"]) == (2, 2, 2)
+    assert (energy["learners"], energy["succeeded"], energy["walking"]) == (3, 2, 1)
+    np.testing.assert_allclose(base["power_over_weight"]["value"], 0.065)
+    np.testing.assert_allclose(energy["power_over_weight"]["value"], 0.054)
+    np.testing.assert_allclose(energy["mean_vx_of_k_e_0"], 0.06 / 0.06)
+    np.testing.assert_allclose(energy["cost_of_transport_of_k_e_0"], 0.9 / 1.1)

@@ -98,7 +98,8 @@ def summarise_return_map(result: dict) -> dict:
 def energy_cells(result: dict) -> list[dict]:
     """Per (k_s, k_E) of a run with energy gains: learners, successes, and over the successful
     ones that walk the unperturbed cycles, the mean speed and cost of transport with their 95%
-    intervals, and both as a fraction of the same k_s's k_E = 0 mean."""
+    intervals, and both as a fraction of the same k_s's k_E = 0 mean; and the mean positive
+    power over the robot's weight, P / (m g) = CoT x speed (m/s), the energy term's own unit."""
     cells = []
     rows = result["learners"]
     for k_s, k_e in sorted({(r["k_s"], r["k_e"]) for r in rows}):
@@ -108,7 +109,11 @@ def energy_cells(result: dict) -> list[dict]:
                       "walking": len(walking),
                       "mean_vx": stats.mean_interval([w["mean_vx"] for w in walking]).as_dict(),
                       "cost_of_transport": stats.mean_interval(
-                          [w["cost_of_transport"] for w in walking if _finite(w.get("cost_of_transport"))]).as_dict()})
+                          [w["cost_of_transport"] for w in walking if _finite(w.get("cost_of_transport"))]).as_dict(),
+                      # work / (m g distance) x distance / time, both over the same cycles
+                      "power_over_weight": stats.mean_interval(
+                          [w["cost_of_transport"] * w["mean_vx"] for w in walking
+                           if _finite(w.get("cost_of_transport"))]).as_dict()})
     for cell in cells:
         base = next((c for c in cells if c["k_s"] == cell["k_s"] and c["k_e"] == 0), None)
         for key in ("mean_vx", "cost_of_transport"):
@@ -122,14 +127,19 @@ def energy_lines(summary: dict) -> list[str]:
     lines = ["## Energy: the cost of transport against k_E", "",
              "Per k_s and energy gain k_E (reward r - k_E P / (m g)), the successful policies that walk the "
              "unperturbed cycles: mean speed and cost of transport with 95% bootstrap intervals over learners, "
-             "and each as a fraction of the same k_s and seeds at k_E = 0.", "",
-             "| k_s | k_E | successes | walking | speed (m/s) | of k_E = 0 | cost of transport | of k_E = 0 |",
-             "|---|---|---|---|---|---|---|---|"]
+             "each as a fraction of the same k_s and seeds at k_E = 0, and the mean positive power over "
+             "the robot's weight, P / (m g) = CoT x speed.", "",
+             "| k_s | k_E | successes | walking | speed (m/s) | of k_E = 0 | cost of transport | of k_E = 0 | "
+             "P / (m g) (m/s) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for c in summary["energy_cells"]:
         speed, cot = stats.Estimate(**c["mean_vx"]), stats.Estimate(**c["cost_of_transport"])
+        # an evaluation saved before the power was summarised has none
+        power = stats.Estimate(**c["power_over_weight"]) if "power_over_weight" in c else None
         lines.append(f"| {c['k_s']:g} | {c['k_e']:g} | {c['succeeded']}/{c['learners']} | {c['walking']} | "
                      f"{speed.format('.3f')} | {_fmt(c['mean_vx_of_k_e_0'], '.2f')} | {cot.format('.2f')} | "
-                     f"{_fmt(c['cost_of_transport_of_k_e_0'], '.2f')} |")
+                     f"{_fmt(c['cost_of_transport_of_k_e_0'], '.2f')} | "
+                     f"{power.format('.4f') if power else '-'} |")
     return lines + [""]
 
 
