@@ -55,6 +55,15 @@ def test_heading_reflex_turns_against_the_heading_within_its_limit():
     assert float(heading_reflex(ControllerParams(), observation(heading=jnp.float32(0.5)))) == 0.0
 
 
+def test_heading_reflex_steers_to_the_commanded_heading():
+    """By hand: commanded 0.5 rad, at 0.3 the error is -0.2 and the turn +0.12 (to the left);
+    at the command, none; far past it, the limit."""
+    params = ControllerParams(h_heading=0.6, max_turn=0.3, heading_command=0.5)
+    assert float(heading_reflex(params, observation(heading=jnp.float32(0.3)))) == pytest.approx(0.12)
+    assert float(heading_reflex(params, observation(heading=jnp.float32(0.5)))) == 0.0
+    assert float(heading_reflex(params, observation(heading=jnp.float32(-0.5)))) == pytest.approx(0.3)
+
+
 def test_slope_reflex_integrates_the_pitch_up_to_its_limit():
     """d(offset)/dt = pitch / T: a constant pitch of 0.05 rad with T = 2 s moves the offset
     0.025 rad per second, so 0.1 rad after 4 s, and it stops at the 0.2 rad limit."""

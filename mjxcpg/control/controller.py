@@ -42,6 +42,7 @@ class ControllerParams:
     hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
     h_heading: float = 0.0          # heading reflex gain (rad of turn per step per rad of heading); 0: off
     max_turn: float = 0.3           # the heading reflex's turn limit (rad per step), inside the hips' +-0.5
+    heading_command: float = 0.0    # the heading the reflex steers to (rad, positive to the left)
     slope_reflex_s: float = 0.0     # the slope reflex's time constant (s); 0: off
     max_ankle_pitch: float = 0.2    # the slope reflex's limit (rad) on its ankle pitch offset
     slope_posture: float = 0.0      # of an incline, the pelvis turned toward upright (0: tilted with the floor)
@@ -96,13 +97,15 @@ def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, 
 
 
 def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:
-    """The heading reflex: the turn of each step, -h_heading times the heading (the pelvis'
-    yaw), within +-max_turn (rad; ``joint_targets`` makes it a turn).
+    """The heading reflex: the turn of each step, -h_heading times the heading error (the
+    pelvis' yaw less ``heading_command``), within +-max_turn (rad; ``joint_targets`` makes
+    it a turn).
 
     Not in the paper, whose robot walks a few metres: with no sense of its heading, a gait
     whose steps turn a little accumulates it without bound.  0 by default.
     """
-    return jnp.clip(-params.h_heading * obs.heading, -params.max_turn, params.max_turn)
+    error = obs.heading - params.heading_command
+    return jnp.clip(-params.h_heading * error, -params.max_turn, params.max_turn)
 
 
 def slope_reflex(params: ControllerParams, ankle_pitch: jax.Array, obs: Observation) -> jax.Array:
