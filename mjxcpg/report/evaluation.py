@@ -105,15 +105,14 @@ def energy_cells(result: dict) -> list[dict]:
     for k_s, k_e in sorted({(r["k_s"], r["k_e"]) for r in rows}):
         rs = [r for r in rows if (r["k_s"], r["k_e"]) == (k_s, k_e)]
         walking = [r["return_map"] for r in rs if r["succeeded"] and not r["return_map"]["fell"]]
+        costed = [w for w in walking if _finite(w.get("cost_of_transport"))]
         cells.append({"k_s": k_s, "k_e": k_e, "learners": len(rs), "succeeded": sum(r["succeeded"] for r in rs),
                       "walking": len(walking),
                       "mean_vx": stats.mean_interval([w["mean_vx"] for w in walking]).as_dict(),
-                      "cost_of_transport": stats.mean_interval(
-                          [w["cost_of_transport"] for w in walking if _finite(w.get("cost_of_transport"))]).as_dict(),
+                      "cost_of_transport": stats.mean_interval([w["cost_of_transport"] for w in costed]).as_dict(),
                       # work / (m g distance) x distance / time, both over the same cycles
                       "power_over_weight": stats.mean_interval(
-                          [w["cost_of_transport"] * w["mean_vx"] for w in walking
-                           if _finite(w.get("cost_of_transport"))]).as_dict()})
+                          [w["cost_of_transport"] * w["mean_vx"] for w in costed]).as_dict()})
     for cell in cells:
         base = next((c for c in cells if c["k_s"] == cell["k_s"] and c["k_e"] == 0), None)
         for key in ("mean_vx", "cost_of_transport"):
@@ -139,7 +138,7 @@ def energy_lines(summary: dict) -> list[str]:
         lines.append(f"| {c['k_s']:g} | {c['k_e']:g} | {c['succeeded']}/{c['learners']} | {c['walking']} | "
                      f"{speed.format('.3f')} | {_fmt(c['mean_vx_of_k_e_0'], '.2f')} | {cot.format('.2f')} | "
                      f"{_fmt(c['cost_of_transport_of_k_e_0'], '.2f')} | "
-                     f"{power.format('.4f') if power else '-'} |")
+                     f"{power.format('.4f') if power is not None else '-'} |")
     return lines + [""]
 
 
