@@ -44,8 +44,9 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
     chunk) and after the last chunk; the results do not depend on it.
 
     ``processes``: the group of processes (``mjxcpg.jaxutil.processes.join``) that runs the
-    learners together, every one calling ``sweep`` alike.  Process 0 alone reads and writes
-    ``out``; the others step their share of the learners and return None.
+    learners together, every one calling ``sweep`` alike, ``out`` on a file system they all
+    see.  Each steps its own block of learners and writes its checkpoints; process 0 holds the
+    lock, checks and starts the run and writes the report; the others return None.
 
     Returns what ``out/summary.json`` holds (per learner: k_s, seed, succeeded,
     trials_to_success, mean_vx, ...), with ``wall_s``, the wall time of this session."""
@@ -53,15 +54,19 @@ def sweep(config: str | Path | RunSpec, out: str | Path, engine: str | None = No
         spec = validate(config) if isinstance(config, RunSpec) else load_spec(str(config))
         checks.check("checkpoint_every_s", checkpoint_every_s, checks.NON_NEGATIVE)
         if not processes.writer:
-            runs.follow(spec, processes)
+            runs.follow(Path(out), spec, processes, tensorboard, checkpoint_every_s)
             processes.barrier()  # until process 0 has written the report
+            processes.close()
             return None
         summary = _sweep_here(spec, Path(out), engine, resume, force, progress, tensorboard, allow_other_code,
                               processes, checkpoint_every_s)
         processes.barrier()
+        processes.close()
         return summary
+    except jax_processes.ProcessError:
+        raise  # a stop the group already knows of
     except BaseException as error:
-        processes.abort(first_line(error))
+        processes.abort(f"failed: {first_line(error)}")
         raise
 
 
@@ -69,7 +74,8 @@ def _sweep_here(spec: RunSpec, out: Path, engine, resume, force, progress, tenso
                 processes: jax_processes.Group, checkpoint_every_s: float) -> dict:
     with runs.locked(out):
         if resume and runs.is_finished(out):
-            runs.share_start(processes, None, None)
+            runs.share_start(processes, None)
+            processes.barrier()  # where the others would wait for every block's end
             return finished_summary(out, spec)
         sim, task, state, wall_s = runs.execute(out, spec, engine, resume=resume, force=force, progress=progress,
                                                 tensorboard=tensorboard, allow_other_code=allow_other_code,

@@ -33,6 +33,7 @@ from mjxcpg.physics.model import Layout, observe
 from mjxcpg.robots.qrio import QRIO
 from mjxcpg.training import checkpoints
 from mjxcpg.training.config import load_spec
+from mjxcpg.training.train import RunState
 
 SEED = 0
 ONE_STEP_STATES = 100
@@ -326,13 +327,20 @@ def test_checkpoint_round_trip_keeps_empty_leaves(tmp_path):
     """MJX's state holds empty arrays (``act`` and others of this model); orbax cannot save
     them, so a checkpoint leaves them out and a restore takes them from its template."""
     spec = load_spec("quick")
-    state = {"empty": np.zeros((spec.batch, 0), np.float32), "qpos": np.arange(6.0).reshape(spec.batch, 2)}
+    physics = {"empty": np.zeros((spec.batch, 0), np.float32), "qpos": np.arange(6.0).reshape(spec.batch, 2)}
+    state = RunState(physics=physics, learners=Periods(period=np.arange(spec.batch)))
     manager = checkpoints.manager_of(tmp_path, writer=True)
     manager.save(1, args=ocp.args.StandardSave(checkpoints.checkpoint_leaves(state, spec)))
     manager.wait_until_finished()
-    restored, _, _ = checkpoints.restore_state(manager, jax.tree.map(np.zeros_like, state), spec)
-    assert restored["empty"].shape == (spec.batch, 0)
-    np.testing.assert_array_equal(restored["qpos"], state["qpos"])
+    restored, notices = checkpoints.restore_learners(tmp_path, jax.tree.map(np.zeros_like, state), spec)
+    assert restored.physics["empty"].shape == (spec.batch, 0) and notices == []
+    np.testing.assert_array_equal(restored.physics["qpos"], physics["qpos"])
+
+
+class Periods(NamedTuple):
+    """The one field of a learner's state that reading checkpoints looks at."""
+
+    period: np.ndarray
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ import socket
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -233,6 +234,26 @@ def test_full_disk_keeps_the_previous_checkpoint_and_is_one_line_error(finished_
     monkeypatch.setattr(async_path, "write_text", write_text)
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
     assert_same_results(run, finished_quick)
+
+
+def test_a_failed_saves_closed_loop_callbacks_are_dropped_and_nothing_else(tmp_path, monkeypatch):
+    """Once orbax writes checkpoints here, the "Event loop is closed" errors that a failed
+    save's pending tensorstore callbacks raise (no object, from their own threads) are
+    dropped; any other unraisable error reaches the hook there was before."""
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", seen.append)
+    checkpoints.manager_at(tmp_path / "checkpoints", writer=True).close()
+
+    def unraisable(error, owner=None):
+        return types.SimpleNamespace(exc_type=type(error), exc_value=error, exc_traceback=None,
+                                     err_msg=None, object=owner)
+
+    closed = unraisable(RuntimeError("Event loop is closed"))
+    others = [unraisable(RuntimeError("Event loop is closed"), owner=object()),
+              unraisable(RuntimeError("something else")), unraisable(ValueError("Event loop is closed"))]
+    for args in [closed, *others]:
+        sys.unraisablehook(args)
+    assert seen == others
 
 
 # ---------------------------------------------------------------- the lock

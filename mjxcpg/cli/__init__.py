@@ -47,14 +47,29 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = args.handler(args)
     except (UserError, ValueError, OSError) as error:  # OSError: a full disk, a missing file, ...
-        print(f"mjxcpg: error: {error}", file=sys.stderr)
-        return 2
+        print(f"mjxcpg: error: {_named(str(error))}", file=sys.stderr)
+        return _failed(2)
     except KeyboardInterrupt:
         print("mjxcpg: interrupted", file=sys.stderr)
-        return 130
+        return _failed(130)
     if result is not None:
         _print_result(result, getattr(args, "json", False))
     return 0
+
+
+def _named(text: str) -> str:
+    """``text``, naming this process when it is one of several and ``text`` does not."""
+    processes = sys.modules.get("mjxcpg.jaxutil.processes")
+    group = processes.joined() if processes is not None else None
+    return text if group is None or text.startswith("process ") else f"process {group.index}: {text}"
+
+
+def _failed(status: int) -> int:
+    """``status``; a process of several ends here and now, not waiting for the others at
+    JAX's shutdown (``mjxcpg.jaxutil.processes.exit_now``)."""
+    if "mjxcpg.jaxutil.processes" in sys.modules:
+        sys.modules["mjxcpg.jaxutil.processes"].exit_now(status)
+    return status
 
 
 def entry(argv: list[str] | None = None) -> int:

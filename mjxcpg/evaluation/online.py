@@ -108,7 +108,7 @@ def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: i
               "start": start}
     runs.write_record(out, spec, sim.engine.name, online=origin)
     start = time.perf_counter()
-    state = runs.learn_to_end(out, sim, task, spec, state, None, progress, tensorboard)
+    state = runs.learn_block(out, sim, task, spec, state, progress, tensorboard, checkpointed=False)
     wall_s = time.perf_counter() - start
 
     results = train.learner_results(spec, state.learners)

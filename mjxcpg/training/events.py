@@ -107,12 +107,15 @@ class _Writer:
 class RunEvents:
     """The event files of the run in ``out``: per learner its trials, and the run's progress."""
 
-    def __init__(self, out: Path, k_s, seeds):
+    def __init__(self, out: Path, k_s, seeds, learners=None, run_progress: bool = True):
+        """``learners``: the learners' indices in the run (default 0, 1, ...), when these
+        are a block of it; ``run_progress``: whether to write the run's progress too."""
         root = out / EVENTS_DIR
-        self._learners = [_Writer(root / learner_run_name(i, k, s)) for i, (k, s) in enumerate(zip(k_s, seeds))]
+        indices = range(len(k_s)) if learners is None else [int(i) for i in learners]
+        self._learners = [_Writer(root / learner_run_name(i, k, s)) for i, k, s in zip(indices, k_s, seeds)]
         self._logged = [_last_step(w.directory) for w in self._learners]
-        self._run = _Writer(root / RUN_NAME)
-        self._run_logged = _last_step(self._run.directory)
+        self._run = _Writer(root / RUN_NAME) if run_progress else None
+        self._run_logged = _last_step(self._run.directory) if run_progress else 0
 
     def write_trials(self, book, done: np.ndarray) -> None:
         """The trials finished since the last call (``book``: the bookkeeping, on the host)."""
@@ -127,15 +130,18 @@ class RunEvents:
 
     def write_progress(self, trials: int, values: dict[str, float]) -> None:
         """The run's ``values`` at ``trials`` trials finished in all, unless already logged."""
-        if trials > self._run_logged:
+        if self._run is not None and trials > self._run_logged:
             self._run.write(trials, {f"progress/{k}": v for k, v in values.items()}, time.time())
             self._run_logged = trials
 
     def flush(self) -> None:
         """Every event written so far, to disk."""
-        for writer in self._learners + [self._run]:
+        for writer in self._writers():
             writer.flush()
 
     def close(self) -> None:
-        for writer in self._learners + [self._run]:
+        for writer in self._writers():
             writer.close()
+
+    def _writers(self) -> list[_Writer]:
+        return self._learners + ([self._run] if self._run is not None else [])

@@ -25,8 +25,8 @@ physics, one robot per unfinished learner, outweighs the rest, and a finished le
 robot is not stepped.  MJX steps every row, so there it holds within one size only.  Pace
 leaves compilation out (the loop compiles each size ahead of its first chunk), so the first
 chunk already sets it; each size still to come adds what a compilation took on average.  (With
-several processes, each compiles for its own block and waits for the others: there the pace
-holds their compilation, and the sizes to come are only the ladder's.)
+several processes, process 0's line counts its own block, which it steps and compacts on
+its own.)
 
 The batch ends with its slowest learner, so the time left is the mean over ``ETA_DRAWS``
 draws of every learner's total, not the time left at each learner's mean total: with many

@@ -3,7 +3,8 @@
 ``DIR/config.json`` (the run spec, the engine, and the code that made the run: see
 ``mjxcpg.training.provenance``), ``DIR/checkpoints/`` (``mjxcpg.training.checkpoints``: orbax, the
 full state: physics, CPG, learner weights, traces, RNG keys, bookkeeping, with the config's
-sha256 and a sha256 of it all),
+sha256 and a sha256 of it all; with several processes each writes its block's in
+``DIR/checkpoint_parts/``),
 ``DIR/summary.json`` (written last: a run directory that holds it is finished), ``DIR/.lock``.
 A checkpoint is written after the first chunk that ends ``checkpoint_every_s`` wall seconds
 (``CHECKPOINT_EVERY_S`` by default; 0: every chunk) or more after the last one began, and
@@ -27,6 +28,7 @@ What can go wrong, and what then happens:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import os
@@ -45,8 +47,8 @@ import orbax.checkpoint as ocp
 from mjxcpg.control.sim import Simulation
 from mjxcpg.jaxutil import processes
 from mjxcpg.training import config, events, provenance, train
-from mjxcpg.training.checkpoints import (RunError, damage_text, manager_of, restore_state, save_next, set_aside,
-                                         write_checkpoint, written)
+from mjxcpg.training.checkpoints import (RunError, manager_at, manager_of, part_directory, restore_learners,
+                                         save_next, write_checkpoint, written)
 from mjxcpg.training.files import write_text_atomic
 from mjxcpg.training.progress import RunProgress
 
@@ -172,8 +174,9 @@ def write_run(out: Path, spec: train.RunSpec, engine: str, state: train.RunState
 
 def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, force: bool,
             allow_other_code: bool = False) -> tuple:
-    """Check the directory, build the simulation and the starting state (fresh or resumed).
-    The caller holds ``locked(out)``."""
+    """Check the directory, build the simulation and the starting state (fresh, or every
+    learner's newest checkpointed state: ``restore_learners``).  The caller holds
+    ``locked(out)``."""
     config_path = out / "config.json"
     record = run_record(spec, engine)
     code = record["code"]
@@ -205,23 +208,17 @@ def prepare(out: Path, spec: train.RunSpec, engine: str | None, resume: bool, fo
     if fresh:
         # Before any checkpoint: a directory with checkpoints always says what made them.
         write_text_atomic(config_path, json.dumps(record | {"engine": sim.engine.name}, indent=1))
-    manager = manager_of(out, writer=True)
-    if manager.all_steps():
-        try:
-            state, step, damaged = restore_state(manager, state, spec)
-        except BaseException:
-            manager.close()
-            raise
-        if damaged:
-            aside = set_aside(out, [d for d, _ in damaged])
-            notice(f"{out}: {damage_text(step, damaged)}; the damaged ones are moved to {aside}")
-            manager.reload()
+    restored = restore_learners(out, state, spec, writer=True)
+    if restored is not None:
+        state, notices = restored
+        for text in notices:
+            notice(text)
     if not fresh and differences:
         # Recorded once the state is restored: a resume that fails leaves no trace.
         record["resumed_with_other_code"] = record.get("resumed_with_other_code", []) + [
             {"code": code, "differences": differences}]
         write_text_atomic(config_path, json.dumps(record, indent=1))
-    return sim, task, state, manager
+    return sim, task, state
 
 
 def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: bool = False,
@@ -232,89 +229,145 @@ def execute(out: Path, spec: train.RunSpec, engine: str | None = None, resume: b
     """Run (or resume) to the end, checkpointing every ``checkpoint_every_s`` wall seconds
     and at the end (module docstring), with a progress line
     (``progress``) and TensorBoard event files (``tensorboard``, ``mjxcpg.training.events``).
-    The caller holds ``locked(out)``.  With several processes (``group``) this is process 0,
-    and the others run ``follow`` meanwhile.
+    The caller holds ``locked(out)``.  With several processes (``group``) this is process 0:
+    it checks the directory and starts the run, then steps its own block of learners while the
+    others run ``follow``, and once every block has its final checkpoint reads the whole
+    batch's final state from them.
 
     Returns the simulation, task, final state and the wall time of this session."""
-    sim, task, state, manager = prepare(out, spec, engine, resume, force, allow_other_code)
+    sim, task, state = prepare(out, spec, engine, resume, force, allow_other_code)
     start = time.perf_counter()
-    try:
-        share_start(group, sim.engine.name, state)
-        state = learn_to_end(out, sim, task, spec, state, manager, progress, tensorboard, group,
-                             checkpoint_every_s)
-    finally:
-        try:
-            written(out, manager.wait_until_finished)
-        finally:
-            manager.close()  # its writer threads, which a long-lived process would keep
-    return sim, task, state, time.perf_counter() - start
+    share_start(group, sim.engine.name)
+    final = learn_block(out, sim, task, spec, state, progress, tensorboard, group, checkpoint_every_s)
+    if group.count > 1:
+        group.barrier()  # until every process has written its block's final checkpoint
+        final, _ = restore_learners(out, state, spec)
+    return sim, task, final, time.perf_counter() - start
 
 
-def share_start(group: processes.Group, engine: str | None,
-                state: train.RunState | None) -> tuple[str | None, list[np.ndarray]]:
-    """Process 0's start of a run (its engine and state, fresh or resumed) to every process:
-    the engine's name and the state's leaves as every process receives them (none when alone,
-    with no one to share with); an engine of None: the run is not to be run (it has finished)."""
+def share_start(group: processes.Group, engine: str | None) -> str | None:
+    """Process 0's engine for the run, to every process (None: the run is not to be run, it
+    has finished); the others' states come from the run's checkpoints, not from process 0."""
     if group.count == 1:
-        return engine, []
-    payload = None
-    if group.writer:
-        leaves = [] if state is None else [np.asarray(x) for x in jax.tree.leaves(jax.device_get(state))]
-        payload = processes.pack([np.frombuffer((engine or "").encode(), np.uint8), *leaves])
-    name, *leaves = processes.unpack(group.broadcast(payload))
-    return name.tobytes().decode() or None, leaves
+        return engine
+    return group.broadcast((engine or "").encode() if group.writer else None).decode() or None
 
 
-def follow(spec: train.RunSpec, group: processes.Group) -> train.RunState | None:
-    """A process other than 0: step this process's learners (``Group.block``) until the run
-    ends, from the start process 0 shares; None when process 0 found the run finished."""
-    engine, leaves = share_start(group, None, None)
-    if engine is None:
-        return None
-    sim = spec.simulation(engine)
-    task = train.make_task(sim, spec)
-    template = train.init_run(sim, task, spec)
-    state = jax.tree.unflatten(jax.tree.structure(template), leaves)
-    return learn_to_end(None, sim, task, spec, state, None, False, False, group)
+def follow(out: Path, spec: train.RunSpec, group: processes.Group, tensorboard: bool = True,
+           checkpoint_every_s: float = CHECKPOINT_EVERY_S) -> None:
+    """A process other than 0: once process 0 has checked ``out`` and started the run, step
+    this process's block of learners (``Group.block``) from their newest checkpointed state
+    to the end; nothing when process 0 found the run finished."""
+    engine = share_start(group, None)
+    if engine is not None:
+        sim = spec.simulation(engine)
+        task = train.make_task(sim, spec)
+        state = train.init_run(sim, task, spec)
+        restored = restore_learners(out, state, spec)
+        learn_block(out, sim, task, spec, state if restored is None else restored[0], False, tensorboard, group,
+                    checkpoint_every_s)
+    group.barrier()  # this block's final checkpoint is on disk
 
 
-def learn_to_end(out: Path | None, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
-                 checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool,
-                 group: processes.Group = processes.ALONE,
-                 checkpoint_every_s: float = CHECKPOINT_EVERY_S) -> train.RunState:
-    """Chunks until every learner is done; after each, the progress line and the event files
-    of ``out``, and a checkpoint (unless ``checkpoints`` is None) and a flush of the events
-    when ``checkpoint_every_s`` have passed since the last or the run has ended; over the
-    processes of ``group`` (``train.run_until_done``)."""
-    run_events = events.RunEvents(out, spec.k_s, spec.seeds) if tensorboard else None
-    book = jax.device_get(state.learners.book)
-    done = train.done_mask(task, state.learners)
-    line = RunProgress(spec.trial, task.dt, sim.engine.substeps, spec.k_s, done, int(np.sum(book.trial)), progress,
+def block_spec(spec: train.RunSpec, rows: np.ndarray) -> train.RunSpec:
+    """``spec``'s learners ``rows``, as a run of their own."""
+    k_e = None if spec.k_e is None else tuple(spec.k_e[i] for i in rows)
+    return dataclasses.replace(spec, k_s=tuple(spec.k_s[i] for i in rows), seeds=tuple(spec.seeds[i] for i in rows),
+                               k_e=k_e)
+
+
+def _first_rows(tree, count: int):
+    return jax.tree.map(lambda x: x[:count], tree)
+
+
+def learn_block(out: Path, sim: Simulation, task: train.Task, spec: train.RunSpec, state: train.RunState,
+                progress: bool, tensorboard: bool, group: processes.Group = processes.ALONE,
+                checkpoint_every_s: float = CHECKPOINT_EVERY_S, checkpointed: bool = True) -> train.RunState:
+    """Chunks until every learner of this process's block (the whole batch, alone) is done;
+    after each, the progress line and the event files of ``out``, and (if ``checkpointed``)
+    a checkpoint and a flush of the events when ``checkpoint_every_s`` have passed since the
+    last or the block has ended (``train.run_until_done``).  A stop that the group asks for
+    (``Group.stop_requested``) writes a checkpoint and raises.  Returns the block's final
+    state (alone: the run's)."""
+    if group.count == 1:
+        block, learners = np.arange(spec.batch), None
+        checkpoints = manager_of(out, writer=True) if checkpointed else None
+    else:
+        block = learners = group.block(spec.batch)
+        if len(block) == 0:
+            return state
+        checkpoints = manager_at(part_directory(out, block), writer=True)
+        if group.writer and progress:
+            notice(f"process 0 of {group.count} steps learners {block[0]}-{block[-1]} of {spec.batch}; "
+                   "the progress line counts those")
+    # A lone learner of a wider run runs beside a copy of itself, as it would in the run's
+    # batch: XLA compiles a batch of one differently.
+    rows = block if len(block) >= 2 or spec.batch < 2 else np.repeat(block, 2)
+    real = len(block)
+    mine = block_spec(spec, rows)
+    if len(rows) != spec.batch:
+        state = jax.tree.map(lambda x: np.asarray(x)[rows], state)
+    try:
+        final = _learn_rows(out, sim, task, spec, mine, state, real, learners, checkpoints, progress, tensorboard,
+                            group, checkpoint_every_s)
+    except BaseException:
+        if checkpoints is not None:
+            # Waited for, not closed: closing ends orbax's event loop under the writes of a
+            # failed save still pending, whose callbacks then print tracebacks.
+            written(Path(checkpoints.directory), checkpoints.wait_until_finished)
+        raise
+    if checkpoints is not None:
+        directory = Path(checkpoints.directory)
+        written(directory, checkpoints.wait_until_finished)
+        written(directory, checkpoints.close)  # its writer threads, which a long-lived process would keep
+    return final
+
+
+def _learn_rows(out, sim, task, spec, mine: train.RunSpec, state: train.RunState, real: int, learners,
+                checkpoints: ocp.CheckpointManager | None, progress: bool, tensorboard: bool,
+                group: processes.Group, checkpoint_every_s: float) -> train.RunState:
+    """``learn_block``'s loop over ``mine``, the block's spec; its first ``real`` rows are its
+    learners (``learners`` in the run; None: the whole batch), the rest a copy."""
+    k_s, seeds = mine.k_s[:real], mine.seeds[:real]
+    run_events = events.RunEvents(out, k_s, seeds, learners, run_progress=group.writer) if tensorboard else None
+    book = jax.device_get(_first_rows(state.learners.book, real))
+    done = train.done_mask(task, state.learners)[:real]
+    line = RunProgress(spec.trial, task.dt, sim.engine.substeps, k_s, done, int(np.sum(book.trial)), progress,
                        sim.engine.threads_for)
     if run_events is not None:  # a resumed checkpoint may hold trials that a kill kept from the events
         run_events.write_trials(book, done)
 
     last_saved = time.monotonic()
 
+    def save(new_state: train.RunState) -> None:
+        written(Path(checkpoints.directory), lambda: save_next(checkpoints, _first_rows(new_state, real), spec,
+                                                                learners))
+
     def on_chunk(new_state: train.RunState, counts: dict) -> None:
         nonlocal last_saved
-        book, done = jax.device_get(new_state.learners.book), counts["done"]
-        due = done.all() or time.monotonic() - last_saved >= checkpoint_every_s
+        book, done = jax.device_get(_first_rows(new_state.learners.book, real)), counts["done"][:real]
+        stop = group.stop_requested()
+        due = done.all() or stop is not None or time.monotonic() - last_saved >= checkpoint_every_s
         if due:
             last_saved = time.monotonic()
-        if checkpoints is not None and due:
-            written(out, lambda: save_next(checkpoints, new_state, spec))
-        measures = line.update(book, np.asarray(jax.device_get(new_state.learners.period)), done,
-                               counts["robot_steps_per_s"], counts["compile_s"])
+            if checkpoints is not None:
+                save(new_state)
+        periods = np.asarray(jax.device_get(new_state.learners.period))[:real]
+        measures = line.update(book, periods, done, counts["robot_steps_per_s"], counts["compile_s"])
         if run_events is not None:
             run_events.write_trials(book, done)
             run_events.write_progress(measures["trials"], {k: v for k, v in measures.items()
                                                            if k != "trials" and v is not None})
             if due:
                 run_events.flush()
+        if stop is not None:
+            if checkpoints is not None:
+                written(Path(checkpoints.directory), checkpoints.wait_until_finished)
+            raise processes.ProcessError(f"process {group.index} stops: {stop}; it wrote its checkpoint: "
+                                         "rerun with --resume")
 
     try:
-        return train.run_until_done(sim, task, spec, state, on_chunk, group=group)
+        return train.run_until_done(sim, task, mine, state, on_chunk)
     finally:
         line.close()
         if run_events is not None:
@@ -365,12 +418,12 @@ def load_run(out: Path, engine: str | None = None, slope_deg: float = 0.0, robot
     # The checkpoint holds the physics in the recorded engine's layout.
     recorded = sim if sim.engine.name == record["engine"] and robot == "nominal" else spec.simulation(
         record["engine"])
-    with contextlib.closing(manager_of(out)) as manager:
-        if not manager.all_steps():
-            raise RunError(f"{out} has no checkpoint")
-        state, step, damaged = restore_state(manager, train.init_run(recorded, task, spec), spec)
-    if damaged:
-        notice(f"{out}: {damage_text(step, damaged)}")
+    restored = restore_learners(out, train.init_run(recorded, task, spec), spec)
+    if restored is None:
+        raise RunError(f"{out} has no checkpoint")
+    state, notices = restored
+    for text in notices:
+        notice(text)
     if recorded is not sim:
         state = state._replace(physics=sim.engine.init(sim.qpos0, spec.batch))
     return LoadedRun(spec, sim, task, state)

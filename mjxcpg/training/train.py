@@ -15,7 +15,7 @@ import numpy as np
 
 from mjxcpg import robots
 from mjxcpg.control.controller import ControllerParams
-from mjxcpg.jaxutil import processes, xla
+from mjxcpg.jaxutil import xla
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning import ngnet
 from mjxcpg.learning.learner import (LearnerState, Task, TrialParams, home_ctrl, init_learner, is_done, learner_step,
@@ -151,7 +151,7 @@ class AheadOfTime:
 
 def learner_sharding(batch: int) -> jax.sharding.NamedSharding:
     """The learner axis split over as many of this process's JAX devices as divide the batch
-    evenly (with several processes, each steps its own learners: ``run_until_done``).
+    evenly (with several processes, each steps its own block of learners on its own).
 
     Each device keeps at least two learners: XLA compiles a batch of one differently (its
     degenerate axis is dropped), which would change results in the last bit.
@@ -266,40 +266,14 @@ def put_rows(tree: Any, rows: np.ndarray, part: Any) -> Any:
     return jax.tree.map(functools.partial(_put_rows, rows), tree, part)
 
 
-def _chunk_of_processes(chunk: Callable, state: RunState, initial: Any, rows: np.ndarray,
-                        group: processes.Group) -> RunState:
-    """One chunk over several processes: each steps the learners of ``rows`` in its block,
-    and every process gets every process's stepped learners back (host arrays)."""
-    mine = np.intersect1d(rows, group.block(jax.tree.leaves(state)[0].shape[0]))
-    parts = []
-    if len(mine):
-        # A lone learner runs beside a copy of itself, as one process would run it in a wider
-        # batch: a batch of one compiles differently.
-        padded = mine if len(mine) >= 2 or len(rows) < 2 else np.repeat(mine, 2)
-        stepped = chunk(shard_learners(take_rows(state, padded), len(padded)),
-                        shard_learners(take_rows(initial, padded), len(padded)))
-        parts = [np.asarray(x)[:len(mine)] for x in jax.tree.leaves(jax.device_get(stepped))]
-    leaves, treedef = jax.tree.flatten(jax.device_get(state))
-    leaves = [np.array(x) for x in leaves]
-    for payload in group.allgather(processes.pack([mine, *parts])):
-        rows_of, *stepped_leaves = processes.unpack(payload)
-        for whole, part in zip(leaves, stepped_leaves):
-            whole[rows_of] = part
-    return jax.tree.unflatten(treedef, leaves)
-
-
 def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
-                   on_chunk: Callable[[RunState, dict], None] | None = None,
-                   group: processes.Group = processes.ALONE) -> RunState:
+                   on_chunk: Callable[[RunState, dict], None] | None = None) -> RunState:
     """Python loop over jitted chunks until every learner has succeeded or used its budget.
 
-    With several processes (``group``), each steps the learners of its block
-    (``Group.block``) and all see the whole state after each chunk, so that every process
-    takes the same decisions (when to stop, which rows to compact) as one process would.
     ``on_chunk(state, counts)`` after each chunk: which learners are done after it (``done``,
-    a mask), the chunk's pace (``robot_steps_per_s``) and this process's compilation for it
-    (``compile_s``), which the pace leaves out.  With several processes the pace still holds
-    the time spent waiting for the others, their compilation included."""
+    a mask), the chunk's pace (``robot_steps_per_s``) and the compilation for it
+    (``compile_s``), which the pace leaves out.  Several processes each run this loop on
+    their own block of learners (``mjxcpg.training.runs.learn_block``), with no exchange."""
     steps = round(spec.chunk_seconds / task.dt)
     chunk = AheadOfTime(make_chunk(sim, task, steps))
     initial = sim.engine.init(sim.qpos0, spec.batch)
@@ -307,10 +281,7 @@ def run_until_done(sim: Simulation, task: Task, spec: RunSpec, state: RunState,
     while not done.all():
         start, compiled_before = time.perf_counter(), compile_seconds(chunk)
         rows = compacted_rows(done)
-        if group.count > 1:
-            state = _chunk_of_processes(chunk, state, initial,
-                                        np.arange(spec.batch) if rows is None else rows, group)
-        elif rows is None:
+        if rows is None:
             state = chunk(shard_learners(state, spec.batch), shard_learners(initial, spec.batch))
         else:
             part = chunk(shard_learners(take_rows(state, rows), len(rows)),
