@@ -78,6 +78,7 @@ class Group:
     _watchdog: threading.Thread | None = None
     _closing: bool = False
     _signals: socket.socket | None = None  # the read end of the signal wake-up socket
+    _signal_writer: socket.socket | None = None  # its write end, kept open for the C handler
     _service: "ServiceProcess | None" = None  # the coordination service's process, on process 0
 
     @property
@@ -301,9 +302,10 @@ def join(coordinator: str | None = None, count: int | None = None, index: int | 
 
     Each process stays a JAX program of its own (``jax.process_count()`` is 1 in each, on
     its own devices): the processes share no arrays, so JAX's multi-controller runtime is
-    not started, only its coordination service (on process 0) and a client of it, for the
-    key-value store and the rendezvous.  A client made here is given a callback for the
-    service's errors, so that they reach the watchdog instead of ending the process."""
+    not started, only its coordination service (in ``ServiceProcess``, forked by process 0)
+    and a client of it in every process, for the key-value store and the rendezvous.  The
+    client's error callback is a no-op: the runtime aborts a client whose service is gone
+    whatever the callback, which is why the service is served apart."""
     import jax
     from jax._src.lib import _jax
 

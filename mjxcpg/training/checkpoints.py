@@ -257,8 +257,9 @@ def set_aside(directory: Path, steps: list[int]) -> Path:
     """Move the damaged checkpoints ``steps`` of ``directory`` (a run's checkpoints/, or one
     of its checkpoint_parts/) out of orbax's sight, into the run's damaged_checkpoints/
     (for a part, a folder of its name there)."""
-    out = directory.parent if directory.name == CHECKPOINTS else directory.parent.parent
-    aside = out / DAMAGED_CHECKPOINTS if directory.name == CHECKPOINTS else out / DAMAGED_CHECKPOINTS / directory.name
+    whole_batch = directory.name == CHECKPOINTS
+    out = directory.parent if whole_batch else directory.parent.parent
+    aside = out / DAMAGED_CHECKPOINTS / ("" if whole_batch else directory.name)
     aside.mkdir(parents=True, exist_ok=True)
     for step in steps:
         target = aside / str(step)
