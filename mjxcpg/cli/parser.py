@@ -110,9 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
         several = p.add_argument_group(
             "several processes", "run the learners in cooperating processes, on one host or many "
-            "(jax.distributed; docs/performance.md): every process runs the same command, and process 0 "
-            "writes --out; flags left out come from the environment as JAX reads it (JAX_COORDINATOR_ADDRESS, "
-            "Slurm, Open MPI)")
+            "(docs/performance.md): every process runs the same command and checkpoints its own "
+            "block of learners in --out, and process 0 writes the report; flags left out come from "
+            "the environment as JAX reads it (JAX_COORDINATOR_ADDRESS, Slurm, Open MPI)")
         several.add_argument("--distributed", action="store_true",
                              help="join the other processes, everything from the environment")
         several.add_argument("--coordinator", metavar="HOST:PORT", help="process 0's address")

@@ -4,7 +4,8 @@ step wired to the CPG controller.  Pure JAX for one learner; ``vmap`` it over le
 A control step of one learner, in order:
 
 1. observe the robot; the reward r = k_H (h1 - h') + k_S v_x (eq 27), with v_x low-pass
-   filtered, since the instantaneous pelvis velocity swings negative with every lateral sway;
+   filtered, since the instantaneous pelvis velocity swings negative with every lateral sway
+   (with a commanded heading, v_x is the velocity along it: ``commanded_velocity``);
 2. while the learner acts: the TD error (eq 17) of the last period and the weight updates
    (eqs 19, 22) with the traces as they were;
 3. the action: during the first seconds of a trial the hand-designed a_5 = K d theta_roll/dt
@@ -29,6 +30,7 @@ budget ends), then stops with the weights as they were at the end of the newest 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import jax
@@ -86,9 +88,9 @@ class Bookkeeping(NamedTuple):
     falls: jax.Array              # (max_trials,) whether each trial ended in a fall
     # Diagnostics of the part of each trial after the hand-over (not used by the learner):
     acting_steps: jax.Array       # control periods acted in the current trial
-    distance: jax.Array           # forward distance walked in them (m)
+    distance: jax.Array           # distance walked in them along the commanded heading (m; +x at 0)
     abs_a5_sum: jax.Array         # sum of |a_5| over them
-    velocities: jax.Array         # (max_trials,) mean forward velocity (m/s)
+    velocities: jax.Array         # (max_trials,) mean velocity along the commanded heading (m/s)
     mean_abs_a5: jax.Array        # (max_trials,) mean |a_5|
     sigmas: jax.Array             # (max_trials,) the policy's sigma at the trial's end
 
@@ -197,11 +199,23 @@ def _initial_estimate(task: Task) -> estimator.EstimatorState | None:
     return estimator.init_state(task.estimator, task.layout.pelvis_height(task.controller.z0))
 
 
+def commanded_velocity(params: ControllerParams, obs: Observation) -> jax.Array:
+    """The velocity the reward's k_S term reads: the pelvis' along the commanded heading c
+    (``ControllerParams.heading_command``), v_x cos c + v_y sin c; at c = 0, v_x itself, the
+    paper's eq (27)."""
+    if params.heading_command == 0.0:
+        return obs.forward_velocity
+    c = params.heading_command
+    return obs.forward_velocity * math.cos(c) + obs.lateral_velocity * math.sin(c)
+
+
 def measured_inputs(task: Task, state: LearnerState, sensors: Sensors, obs: Observation):
     """(height, forward velocity, fell, estimator state) for the reward and the fall test:
-    the ground truth, or the estimator's reading of the sensors when ``task.estimator`` is set."""
+    the ground truth (the velocity along the commanded heading, ``commanded_velocity``), or
+    the estimator's reading of the sensors when ``task.estimator`` is set (its velocity is
+    along the robot's own heading, which the heading reflex holds at the command)."""
     if task.estimator is None:
-        return obs.height, obs.forward_velocity, has_fallen(task.layout, obs), state.estimate
+        return obs.height, commanded_velocity(task.controller, obs), has_fallen(task.layout, obs), state.estimate
     estimate_state, measured = estimator.estimate(task.estimator, state.estimate, sensors, obs, task.dt)
     return measured.height, measured.forward_velocity, measured.fallen, estimate_state
 
@@ -257,7 +271,8 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     streak = jnp.where(ended, jnp.where(fell, 0, book.streak + 1), book.streak)
     newly_succeeded = record & (streak >= task.trial.success_streak) & (book.trials_to_success < 0)
     acting_steps = book.acting_steps + acting.astype(jnp.int32)
-    distance = book.distance + jnp.where(acting, jnp.nan_to_num(obs.forward_velocity) * task.dt, 0.0)
+    along_command = jnp.nan_to_num(commanded_velocity(task.controller, obs))
+    distance = book.distance + jnp.where(acting, along_command * task.dt, 0.0)
     abs_a5_sum = book.abs_a5_sum + jnp.where(acting, jnp.abs(a5), 0.0)
     acted = jnp.maximum(acting_steps, 1)
 

@@ -161,6 +161,7 @@ class Observation(NamedTuple):
     force_right: jax.Array
     height: jax.Array        # ground truth: pelvis height above the floor under it (m)
     forward_velocity: jax.Array  # ground truth: pelvis velocity along +x (m/s)
+    lateral_velocity: jax.Array  # ground truth: pelvis velocity along +y, to the left (m/s)
     forward_position: jax.Array
     uprightness: jax.Array   # ground truth: z component of the pelvis' up axis
     heading: jax.Array       # ground truth: pelvis yaw about the world's z (rad, to the left > 0)
@@ -182,6 +183,7 @@ def observe(layout: Layout, sensors: Sensors) -> Observation:
         force_right=sd[layout.right_touch],
         height=qpos[2] - qpos[0] * layout.slope_tan,
         forward_velocity=qvel[0],
+        lateral_velocity=qvel[1],
         forward_position=qpos[0],
         uprightness=1 - 2 * (qx * qx + qy * qy),
         heading=jnp.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz)),
