@@ -15,7 +15,9 @@ and any ``--reference`` run's policies as they were learned: how much each drift
     .venv/bin/python bench/heading_study.py --out runs/heading --reference runs/paper \
         --reference-learners 22 23 24 25 26
 
-Writes OUT/heading_study.json and OUT/heading_study.md (also printed).
+Writes OUT/heading_study.json and OUT/heading_study.md (also printed; ``--report`` names
+them).  ``--hand-seconds S ...`` walks each policy after each of those hand-designed starts
+instead, e.g. ``--commands 30 -30 --hand-seconds 0.5 1 1.5 2 3 --report hand_over``.
 """
 
 import argparse
@@ -59,17 +61,20 @@ def heading_walk(trace: walk.Trace, k: int, dt: float, command_deg: float, after
 
 
 def walk_run(run_dir: Path, learners, seconds: float, after_s: float, command_deg: float,
-             controller_changes: dict | None = None) -> dict:
-    """Every chosen policy of ``run_dir`` walked twice (as its trials started, from standing)."""
+             controller_changes: dict | None = None, hand_seconds: list[float] | None = None) -> dict:
+    """Every chosen policy of ``run_dir`` walked twice (as its trials started, from standing),
+    or once after each of ``hand_seconds`` of the hand-designed feedback."""
     spec, sim, task, state = runs.load_run(run_dir)
     if controller_changes:
         sim = sim.rebuild(params=dataclasses.replace(sim.params, **controller_changes))
     chosen = runs.check_learners(spec, learners)
     weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
+    starts = ([("as_trials", spec.trial.walk_hand_seconds), ("standing", 0.0)] if hand_seconds is None
+              else [(f"hand_{s:g}_s", s) for s in hand_seconds])
     out = {}
-    for start, hand_seconds in (("as_trials", spec.trial.walk_hand_seconds), ("standing", 0.0)):
+    for start, hand in starts:
         trace = jax.device_get(walk.walk_from_standing(sim, actor_feedback(task), weights, seconds,
-                                                       record_qpos=True, hand_seconds=hand_seconds))
+                                                       record_qpos=True, hand_seconds=hand))
         out[start] = [{"learner": k, **heading_walk(trace, j, sim.control_dt, command_deg, after_s)}
                       for j, k in enumerate(chosen)]
     return out
@@ -112,6 +117,10 @@ def main() -> None:
     parser.add_argument("--reference", type=Path, nargs="*", default=[],
                         help="runs whose policies are walked as learned")
     parser.add_argument("--reference-learners", type=int, nargs="+", default=None)
+    parser.add_argument("--hand-seconds", type=float, nargs="+", default=None,
+                        help="walk after each of these hand-designed starts instead (default: as the "
+                             "trials started, and from standing)")
+    parser.add_argument("--report", default="heading_study", help="OUT/REPORT.json and .md")
     args = parser.parse_args()
     xla.one_cpu_thread()
     base = mjxcpg.load_spec(args.config)
@@ -128,22 +137,22 @@ def main() -> None:
         if command == 0:
             variants["the same, heading reflex off"] = {"h_heading": 0.0}
         for name, changes in variants.items():
-            walks = walk_run(run_dir, None, args.seconds, args.after, command, changes)
+            walks = walk_run(run_dir, None, args.seconds, args.after, command, changes, args.hand_seconds)
             results[name] = {"run": str(run_dir), "command_deg": command, "succeeded": succeeded, "walks": walks,
                              "cells": {start: cell(rows, command) for start, rows in walks.items()}}
     for reference in args.reference:
         summary = json.loads((reference / "summary.json").read_text())
         chosen = args.reference_learners or list(range(len(summary["learners"])))
         succeeded = f"{sum(summary['learners'][k]['succeeded'] for k in chosen)}/{len(chosen)}"
-        walks = walk_run(reference, chosen, args.seconds, args.after, 0.0)
+        walks = walk_run(reference, chosen, args.seconds, args.after, 0.0, None, args.hand_seconds)
         results[f"{reference}, learners {chosen[0]}-{chosen[-1]}"] = {
             "run": str(reference), "command_deg": 0.0, "succeeded": succeeded, "walks": walks,
             "cells": {start: cell(rows, 0.0) for start, rows in walks.items()}}
     lines = [f"Walks of {args.seconds:g} s, measured after the first {args.after:g} s "
-             f"(`bench/heading_study.py --out {args.out}`):", ""] + table(results)
+             f"(`bench/heading_study.py --out {args.out} ...`):", ""] + table(results)
     print("\n".join(lines))
-    (args.out / "heading_study.json").write_text(json.dumps(results, indent=1))
-    (args.out / "heading_study.md").write_text("\n".join(lines) + "\n")
+    (args.out / f"{args.report}.json").write_text(json.dumps(results, indent=1))
+    (args.out / f"{args.report}.md").write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
