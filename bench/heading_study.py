@@ -94,7 +94,7 @@ def cell(rows: list[dict], command_deg: float) -> dict:
 
 def table(results: dict) -> list[str]:
     lines = [f"| policies | command (deg) | succeeded | start | no fall | mean heading within {WITHIN_DEG:g} deg | "
-             "mean heading (deg) | largest |heading - command| (deg) | speed along the command (m/s) |",
+             "mean heading (deg) | largest \\|heading - command\\| (deg) | speed along the command (m/s) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
         for start, c in r["cells"].items():

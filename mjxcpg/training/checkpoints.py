@@ -17,6 +17,7 @@ import contextlib
 import hashlib
 import json
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -96,9 +97,21 @@ def manager_at(directory: Path, writer: bool = False) -> ocp.CheckpointManager:
     orbax writes for the one that asks.)"""
     if writer:
         _drop_closed_loop_callbacks()
+        _remove_unfinished_writes(directory)
     return ocp.CheckpointManager(
         directory.resolve(), options=ocp.CheckpointManagerOptions(
             max_to_keep=KEPT_CHECKPOINTS, create=writer, cleanup_tmp_directories=writer, read_only=not writer))
+
+
+def _remove_unfinished_writes(directory: Path) -> None:
+    """Remove the temporary directories of writes that a killed process left in ``directory``.
+
+    Only a writer calls this, and each writer owns its directory (the run's lock, or its own
+    block's part), so no live write owns one.  Orbax's own clean-up is not enough: after a
+    kill during the write of step n, a resume that writes step n again lost its new temporary
+    directory of the same name ("No such file or directory: n.orbax-checkpoint-tmp")."""
+    for path in directory.glob("*.orbax-checkpoint-tmp*"):
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def written(directory: Path, action: Callable[[], Any]) -> Any:
