@@ -107,6 +107,17 @@ def table(results: dict) -> list[str]:
     return lines
 
 
+def measured(run_dir: Path, learners, command_deg: float, args, controller_changes: dict | None = None) -> dict:
+    """The chosen learners of ``run_dir`` (all when None): how many met the success criterion
+    (summary.json), their walks (``walk_run``) and each start's ``cell``."""
+    summary = json.loads((run_dir / "summary.json").read_text())["learners"]
+    walks = walk_run(run_dir, learners, args.seconds, args.after, command_deg, controller_changes, args.hand_seconds)
+    chosen = [w["learner"] for w in next(iter(walks.values()))]
+    return {"run": str(run_dir), "command_deg": command_deg, "learners": chosen,
+            "succeeded": f"{sum(summary[k]['succeeded'] for k in chosen)}/{len(chosen)}", "walks": walks,
+            "cells": {start: cell(rows, command_deg) for start, rows in walks.items()}}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
@@ -131,23 +142,14 @@ def main() -> None:
             base.controller, heading_command=math.radians(command)))
         if not (run_dir / "summary.json").is_file():
             mjxcpg.sweep(spec, out=run_dir, resume=(run_dir / "config.json").is_file())
-        summary = json.loads((run_dir / "summary.json").read_text())
-        succeeded = f"{sum(r['succeeded'] for r in summary['learners'])}/{len(summary['learners'])}"
         variants = {f"learned at {command:+g}": None}
         if command == 0:
             variants["the same, heading reflex off"] = {"h_heading": 0.0}
         for name, changes in variants.items():
-            walks = walk_run(run_dir, None, args.seconds, args.after, command, changes, args.hand_seconds)
-            results[name] = {"run": str(run_dir), "command_deg": command, "succeeded": succeeded, "walks": walks,
-                             "cells": {start: cell(rows, command) for start, rows in walks.items()}}
+            results[name] = measured(run_dir, None, command, args, changes)
     for reference in args.reference:
-        summary = json.loads((reference / "summary.json").read_text())
-        chosen = args.reference_learners or list(range(len(summary["learners"])))
-        succeeded = f"{sum(summary['learners'][k]['succeeded'] for k in chosen)}/{len(chosen)}"
-        walks = walk_run(reference, chosen, args.seconds, args.after, 0.0, None, args.hand_seconds)
-        results[f"{reference}, learners {chosen[0]}-{chosen[-1]}"] = {
-            "run": str(reference), "command_deg": 0.0, "succeeded": succeeded, "walks": walks,
-            "cells": {start: cell(rows, 0.0) for start, rows in walks.items()}}
+        entry = measured(reference, args.reference_learners, 0.0, args)
+        results[f"{reference}, learners {entry['learners'][0]}-{entry['learners'][-1]}"] = entry
     lines = [f"Walks of {args.seconds:g} s, measured after the first {args.after:g} s "
              f"(`bench/heading_study.py --out {args.out} ...`):", ""] + table(results)
     print("\n".join(lines))
