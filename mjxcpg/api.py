@@ -160,13 +160,18 @@ def eval_command(run_dir: Path, learners, engine, robot: str, params: EvalParams
 
 @dataclasses.dataclass(frozen=True)
 class ReproductionBudget:
-    """How much of each stage ``reproduce`` runs beyond the sweep (which runs its config whole)."""
+    """How much of each stage ``reproduce`` runs beyond the sweep (which runs its config whole).
+    ``BUDGET_FLAGS`` are those ``mjxcpg reproduce`` takes as flags."""
 
     controls: tuple[str, ...] = ("learning_off", "learning_off_min_sigma", "zero_feedback")
     control_trials: int = 100           # each control learner's budget, as the 70-learner study's
     transfer_repeats: int = 10          # walks per policy on each hardware robot, each with other noise
     online_robot: str = "harsh"         # the hardware robot online learning repairs policies on
     online_start: str = "standing"      # its trials from standing, as the transfer walks (online.STARTS)
+    # sigma restarts at its initial value (online.EXPLORATIONS): at the learned one, exploration
+    # and the mean's steps ((sigma / sigma_0)^2 of the first) are small, and fewer policies are
+    # repaired within 200 trials (docs/hardware.md)
+    online_exploration: str = "initial"
     online_learners: int = 27           # at most this many of the policies failing there learn on
     online_trials: int = 200            # the paper's: walking within 200 trials on QRIO
     eval_params: EvalParams = EvalParams()  # every evaluation's protocol (the Python API's to change)
@@ -175,11 +180,14 @@ class ReproductionBudget:
         return (f"controls {', '.join(self.controls)} with {self.control_trials} trials each; every evaluation "
                 f"of `mjxcpg eval`{'' if self.eval_params == EvalParams() else ' with other protocol constants'} from "
                 f"standing; {self.transfer_repeats} walks per policy on each hardware robot ({', '.join(HARDWARE_ROBOTS)}); "
-                f"online learning ({self.online_trials} trials, {self.online_start} start) on the `{self.online_robot}` "
+                f"online learning ({self.online_trials} trials, {self.online_start} start, {self.online_exploration} "
+                f"sigma) on the `{self.online_robot}` "
                 f"robot for at most {self.online_learners} of the policies that do not walk there in every try, "
                 "beside the same trials with learning off.")
 
 
+BUDGET_FLAGS = ("control_trials", "transfer_repeats", "online_robot", "online_start", "online_exploration",
+                "online_learners", "online_trials")
 HARDWARE_ROBOTS = tuple(hardware.MISMATCHES)  # every robot the hardware stage walks the policies on
 
 
@@ -205,13 +213,14 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
         raise ValueError(f"unknown hardware robot {budget.online_robot!r}; choose one of {', '.join(HARDWARE_ROBOTS)}")
     if budget.online_start not in online.STARTS:
         raise ValueError(f"unknown online start {budget.online_start!r}; choose one of {', '.join(online.STARTS)}")
+    if budget.online_exploration not in online.EXPLORATIONS:
+        raise ValueError(f"unknown online exploration {budget.online_exploration!r}; choose one of "
+                         f"{', '.join(online.EXPLORATIONS)}")
     for name in budget.controls:
         controls.control_spec(spec, name, budget.control_trials)  # a bad control is refused before any run
     record_path = out / document.PIPELINE_RECORD
     command = f"mjxcpg reproduce --config {config} --out {out}" + "".join(
-        f" --{name.replace('_', '-')} {getattr(budget, name)}" for name in ("control_trials", "transfer_repeats",
-                                                                           "online_robot", "online_start",
-                                                                           "online_learners", "online_trials")
+        f" --{name.replace('_', '-')} {getattr(budget, name)}" for name in BUDGET_FLAGS
         if getattr(budget, name) != getattr(ReproductionBudget(), name))
     if record_path.is_file():
         record = json.loads(record_path.read_text())
@@ -278,14 +287,16 @@ def reproduce(config: str = "paper", out: str | Path = "runs/paper", engine: str
         for name, learning in (("online", True), ("online_control", False)):
             target = out / name
             words = (f"mjxcpg learn --from {out} --learner {' '.join(map(str, failing))} "
-                     f"--robot {budget.online_robot} --start {budget.online_start} --trials {budget.online_trials} "
+                     f"--robot {budget.online_robot} --start {budget.online_start} "
+                     f"--exploration {budget.online_exploration} --trials {budget.online_trials} "
                      f"--out {target}"
                      + ("" if learning else " --no-learning"))
             commands[name] = words if failing else ""
             if not failing or ((target / "online.json").is_file() and again):
                 continue  # nothing to learn on, or learned before the interruption
             online.learn_online(out, failing, target, trials=budget.online_trials, robot=budget.online_robot,
-                                engine=engine, learning=learning, start=budget.online_start, force=again,
+                                engine=engine, learning=learning, start=budget.online_start,
+                                exploration=budget.online_exploration, force=again,
                                 progress=progress)
         mark("online", "finished", **commands)
     begin("report")

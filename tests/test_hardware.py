@@ -257,6 +257,7 @@ def test_learner_reads_the_estimator_only_when_asked():
 
 @pytest.mark.parametrize("argv, message", [
     (["learn", "--robot", "hardware"], "need --from"),
+    (["learn", "--exploration", "initial"], "need --from"),
     (["learn", "--from", "/nonexistent/run", "--robot", "hardware"], "no run directory"),
     (["learn", "--from", "/nonexistent/run", "--k-s", "3"], "come from the checkpoint"),
     (["learn", "--from", "/nonexistent/run", "--platform", "child"], "come from the checkpoint"),
@@ -336,6 +337,28 @@ def test_online_learning_off_keeps_the_weights_it_started_from(learned_run, tmp_
     _, _, _, state = runs.load_run(out, robot="harsh")
     for before, after in zip(jax.tree.leaves(source.learners.weights), jax.tree.leaves(state.learners.weights)):
         np.testing.assert_array_equal(np.asarray(after), np.repeat(np.asarray(before)[:1], 2, axis=0))
+
+
+@pytest.mark.slow
+def test_online_learning_can_restart_sigma_at_its_initial_value(tmp_path):
+    """exploration="initial": sigma starts at eq (26)'s sigmoid(0) = 0.5 (the learner's
+    init_w_sigma), the critic and mean as learned; "learned" keeps the source's sigma,
+    sigmoid(-1.5) = 0.18243; learning off, so nothing moves them during the trials."""
+    source = make_learned_run(tmp_path / "source", w_sigma=-1.5)
+    first_sigma = {}
+    for exploration in online.EXPLORATIONS:
+        out = tmp_path / exploration
+        online.learn_online(source, [0], out, trials=2, robot="harsh", learning=False, exploration=exploration,
+                            progress=False, tensorboard=False)
+        (row,) = json.loads((out / "online.json").read_text())["learners"]
+        first_sigma[exploration] = row["sigmas"][0]
+        _, _, _, before = runs.load_run(source)
+        _, _, _, after = runs.load_run(out, robot="harsh")
+        for name in ("critic", "mean"):
+            np.testing.assert_array_equal(np.asarray(getattr(after.learners.weights, name)),
+                                          np.asarray(getattr(before.learners.weights, name)))
+    assert first_sigma["initial"] == 0.5  # exact in float32
+    assert first_sigma["learned"] == pytest.approx(1.0 / (1.0 + np.exp(1.5)), rel=1e-6)  # float32 rounding
 
 
 def test_online_trials_from_standing_hand_over_at_the_first_period():

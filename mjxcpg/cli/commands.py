@@ -86,9 +86,10 @@ def cmd_learn(args: argparse.Namespace) -> dict | None:
         if args.group.count > 1:
             raise UserError("--from runs in one process: leave out the flags of several processes")
         return _learn_online(args)
-    if args.robot != "nominal" or args.reward is not None or not args.learning or args.start is not None:
-        raise UserError("--robot, --reward, --start and --no-learning need --from: learning from scratch runs "
-                        "on the nominal robot")
+    if (args.robot != "nominal" or args.reward is not None or not args.learning or args.start is not None
+            or args.exploration is not None):
+        raise UserError("--robot, --reward, --start, --exploration and --no-learning need --from: learning from "
+                        "scratch runs on the nominal robot")
     args.k_s = 10.0 if args.k_s is None else args.k_s
     args.seed = 0 if args.seed is None else args.seed
     spec = RunSpec.for_platform(args.platform or DEFAULT_PLATFORM, k_s=(args.k_s,), seeds=(args.seed,))
@@ -137,7 +138,7 @@ def _learn_online(args: argparse.Namespace) -> dict:
     trials = 400 if args.trials is None else args.trials
     return online.learn_online(source, args.learner, out, trials=trials, robot=args.robot,
                                reward=args.reward, engine=args.engine, learning=args.learning, start=args.start,
-                               force=args.force,
+                               exploration=args.exploration or "learned", force=args.force,
                                progress=not args.quiet, tensorboard=args.tensorboard) | {"out": str(out)}
 
 
@@ -231,9 +232,7 @@ def cmd_reproduce(args: argparse.Namespace) -> dict:
     learning on it, and one report (what ``make run`` runs)."""
     from mjxcpg import api
 
-    budget = api.ReproductionBudget(**{name: getattr(args, name) for name in ("control_trials", "transfer_repeats",
-                                                                               "online_robot", "online_start",
-                                                                               "online_learners", "online_trials")
+    budget = api.ReproductionBudget(**{name: getattr(args, name) for name in api.BUDGET_FLAGS
                                        if getattr(args, name) is not None})
     out = Path(args.out or f"runs/{Path(args.config).stem}")
     result = api.reproduce(args.config, out, args.engine, budget, progress=not args.quiet)

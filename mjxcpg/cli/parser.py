@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.physics.model import MAX_SLOPE_DEG
     from mjxcpg.training.config import config_names, range_of
     from mjxcpg.evaluation.controls import CONTROLS
-    from mjxcpg.evaluation.online import REWARD_SOURCES, STARTS
+    from mjxcpg.evaluation.online import EXPLORATIONS, REWARD_SOURCES, STARTS
     from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     seconds = _number(checks.POSITIVE)
@@ -70,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"the hardware robot of online learning (default {budget.online_robot}; docs/hardware.md)")
     rep.add_argument("--online-start", choices=STARTS, default=None,
                      help=f"how online trials start (default {budget.online_start})")
+    rep.add_argument("--online-exploration", choices=EXPLORATIONS, default=None,
+                     help=f"the sigma online learning starts from (default {budget.online_exploration})")
     rep.add_argument("--online-learners", type=_number(checks.NON_NEGATIVE_COUNT), default=None,
                      help=f"at most this many failing policies learn on that robot (default "
                           f"{budget.online_learners})")
@@ -135,6 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--start", choices=STARTS, default=None,
                        help="with --from: hand (the run's hand-designed start, the default) or standing "
                             "(the policy from the first period)")
+    learn.add_argument("--exploration", choices=EXPLORATIONS, default=None,
+                       help="with --from: sigma starts as learned (the default) or at its initial value")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
                        help="robot to continue on with --from (hardware, harsh: docs/hardware.md)")
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,

@@ -13,12 +13,15 @@ with the learner and the trial protocol of their run except:
   learning stops at success;
 * with ``start="standing"``, every trial starts from standing with the policy acting from
   the first period (no hand-designed start): the start is then part of what is learned;
+* with ``exploration="initial"``, sigma starts from its initial value (the learner's
+  ``init_w_sigma``) instead of the learned one, the critic and mean as learned;
 * with ``learning=False``, the control: the same trials, exploration noise included, with
   every learning rate 0.
 
 The result directory is a run directory: ``load_run(out, robot=...)`` reloads the policies
 (e.g. ``transfer.walk_policies``); ``online.json`` holds, per learner, trials to success,
-per-trial returns and falls, and whether the final policy walks 20 s by ground truth.
+per-trial returns, falls and sigma (at the trial's end), and whether the final policy walks
+20 s by ground truth.
 """
 
 from __future__ import annotations
@@ -41,6 +44,8 @@ from mjxcpg.training import config, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 STARTS = ("hand", "standing")  # a trial starts with the run's hand-designed start, or from standing
+# sigma the online learning starts from: the run's learned one, or the initial one of its learner
+EXPLORATIONS = ("learned", "initial")
 
 
 def continued_spec(spec: train.RunSpec, learners: Sequence[int], trials: int, trial_seconds: float,
@@ -62,13 +67,14 @@ def continued_spec(spec: train.RunSpec, learners: Sequence[int], trials: int, tr
 
 def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int = 400, robot: str = "hardware",
                  reward: str | None = None, engine: str | None = None, trial_seconds: float = 16.0,
-                 learning: bool = True, start: str = "hand", force: bool = False, progress: bool = True,
-                 tensorboard: bool = True) -> dict:
+                 learning: bool = True, start: str = "hand", exploration: str = "learned", force: bool = False,
+                 progress: bool = True, tensorboard: bool = True) -> dict:
     """Continue ``learners`` of the run in ``source`` on ``robot``, together; write ``out``.
 
     ``reward``: "estimate" (the robot's sensors; the default on a hardware robot) or
     "truth" (the simulator's state; the default on the nominal one).  ``learning=False``
-    runs the control with learning off; ``start`` is one of ``STARTS``.
+    runs the control with learning off; ``start`` is one of ``STARTS``, ``exploration`` one of
+    ``EXPLORATIONS``.
     Returns the summary that ``out/online.json`` holds, without the per-trial lists.
     """
     reward = reward or ("estimate" if robot in hardware.MISMATCHES else "truth")
@@ -76,6 +82,8 @@ def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int =
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
     if start not in STARTS:
         raise ValueError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
+    if exploration not in EXPLORATIONS:
+        raise ValueError(f"unknown exploration {exploration!r}; choose one of {', '.join(EXPLORATIONS)}")
     source_spec, _ = runs.read_config(source)  # a bad source is refused before ``out`` is made
     learners = runs.check_learners(source_spec, list(learners))
     if not learners:
@@ -85,12 +93,12 @@ def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int =
     with runs.locked(out):
         runs.clear_for_new_run(out, force)
         return _learn_online_locked(source, learners, out, trials, robot, reward, engine, trial_seconds, learning,
-                                    start, progress, tensorboard)
+                                    start, exploration, progress, tensorboard)
 
 
 def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: int, robot: str, reward: str,
                          engine: str | None, trial_seconds: float, learning: bool, start: str,
-                         progress: bool, tensorboard: bool) -> dict:
+                         exploration: str, progress: bool, tensorboard: bool) -> dict:
     """``learn_online`` once ``out`` is locked and empty."""
     source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
     spec = continued_spec(source_spec, learners, trials, trial_seconds, learning, start)
@@ -101,11 +109,14 @@ def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: i
     fresh = [init_learner(task, k_s, seed, None if spec.k_e is None else spec.k_e[i])
              for i, (k_s, seed) in enumerate(zip(spec.k_s, spec.seeds))]
     fresh = jax.tree.map(lambda *x: jnp.stack(x), *fresh)
-    fresh = fresh._replace(weights=jax.tree.map(lambda w: w[rows], source_state.learners.weights))
+    weights = jax.tree.map(lambda w: w[rows], source_state.learners.weights)
+    if exploration == "initial":
+        weights = weights._replace(sigma=fresh.weights.sigma)  # init_learner's: the learner's init_w_sigma
+    fresh = fresh._replace(weights=weights)
     state = train.RunState(physics=sim.engine.init(sim.qpos0, len(learners)), learners=fresh)
 
     origin = {"from": str(source), "learners": learners, "robot": robot, "reward": reward, "learning": learning,
-              "start": start}
+              "start": start} | ({} if exploration == "learned" else {"exploration": exploration})
     runs.write_record(out, spec, sim.engine.name, online=origin)
     start = time.perf_counter()
     state = runs.learn_block(out, sim, task, spec, state, progress, tensorboard, checkpointed=False)
@@ -117,7 +128,7 @@ def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: i
                  "trials_to_success": r["trials_to_success"], "trials": r["trials"],
                  "falls_in_first_20": sum(r["falls"][:20]),
                  "final_policy_walks_20s": not w["fell"], "final_policy_mean_vx": w["mean_vx"],
-                 "returns": r["returns"], "falls": r["falls"]}
+                 "returns": r["returns"], "falls": r["falls"], "sigmas": r["sigmas"]}
                 for i, (k, r, w) in enumerate(zip(learners, results, walk_checks))]
     summary = origin | {"engine": sim.engine.name, "trial_seconds": trial_seconds, "trials": trials,
                         "succeeded": sum(r["succeeded"] for r in rows_out), "wall_s": wall_s}

@@ -92,6 +92,14 @@ def evaluation_sections(eval_dir: Path, names: tuple[str, ...] | None = None) ->
     return evaluation.render_sections(saved, summary, eval_dir) + _command(command)
 
 
+def _exploration_words(online_record: dict | None) -> str:
+    """How the online learners' sigma started, as ``online.json`` records it."""
+    if online_record is None:
+        return ""
+    return (" (sigma restarted at its initial value)" if online_record.get("exploration") == "initial"
+            else " (sigma as learned)")
+
+
 def online_section(run_dir: Path, commands: dict, robot: str = "harsh") -> list[str]:
     """Online additional learning on a hardware robot of the learners that failed there,
     beside the same trials with learning off."""
@@ -101,7 +109,8 @@ def online_section(run_dir: Path, commands: dict, robot: str = "harsh") -> list[
     robot = (learned or {}).get("robot", robot)
     lines = [f"## Online learning on the `{robot}` hardware robot", "",
              f"Each policy that did not walk in every try on the `{robot}` robot learns on there from its final "
-             "weights, with a reward from the robot's sensors alone (`docs/hardware.md`), until 20 successive "
+             f"weights{_exploration_words(learned)}, with a reward from the robot's sensors alone "
+             "(`docs/hardware.md`), until 20 successive "
              "trials without a fall; the control runs the same trials with learning off. The paper: the "
              f"failing policies walked within {PAPER_ONLINE_TRIALS} trials on QRIO.", ""]
     if learned is None:
