@@ -345,6 +345,7 @@ def test_online_learning_can_restart_sigma_at_its_initial_value(tmp_path):
     init_w_sigma), the critic and mean as learned; "learned" keeps the source's sigma,
     sigmoid(-1.5) = 0.18243; learning off, so nothing moves them during the trials."""
     source = make_learned_run(tmp_path / "source", w_sigma=-1.5)
+    _, _, _, before = runs.load_run(source)
     first_sigma = {}
     for exploration in online.EXPLORATIONS:
         out = tmp_path / exploration
@@ -352,7 +353,6 @@ def test_online_learning_can_restart_sigma_at_its_initial_value(tmp_path):
                             progress=False, tensorboard=False)
         (row,) = json.loads((out / "online.json").read_text())["learners"]
         first_sigma[exploration] = row["sigmas"][0]
-        _, _, _, before = runs.load_run(source)
         _, _, _, after = runs.load_run(out, robot="harsh")
         for name in ("critic", "mean"):
             np.testing.assert_array_equal(np.asarray(getattr(after.learners.weights, name)),
