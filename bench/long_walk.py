@@ -3,7 +3,7 @@
 Walks each chosen final policy (its mean, no noise), or a control (``--controller hand``:
 the hand-designed feedback; ``zero``: a_5 = 0), from standing for ``--seconds`` on the
 run's engine, all in one batch, and prints per learner and per window of ``--window``
-seconds (after the first 2 s):
+seconds (after the first ``--settle`` seconds, 2 by default):
 
 * heading: the pelvis' yaw (degrees, positive to the left), at the window's end;
 * v_x: the mean velocity along the world's +x, as eval's Fig 7 and the trials' reward
@@ -128,6 +128,7 @@ def main() -> None:
     parser.add_argument("--controller", choices=("policy", "hand", "zero"), default="policy")
     parser.add_argument("--seconds", type=float, default=100.0)
     parser.add_argument("--window", type=float, default=10.0)
+    parser.add_argument("--settle", type=float, default=2.0, help="seconds left out before the first window")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
                         help="controller constants instead of the run's (ControllerParams fields)")
@@ -145,17 +146,17 @@ def main() -> None:
     rows = record_walk(sim, task, weights, feedback, round(args.seconds / sim.control_dt))
     results = {}
     for j, learner in enumerate(chosen):
-        results[learner] = windows(rows, j, sim.control_dt, args.window)
+        results[learner] = windows(rows, j, sim.control_dt, args.window, args.settle)
         print(f"\nlearner {learner} (k_s = {spec.k_s[learner]:g}, seed {spec.seeds[learner]}), {args.controller}")
         print("| t (s) | heading (deg) | v_x | v_head | y (m) | amp z | amp x | period (s) | stride (m) | abs a5 | h (m) |")
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for w in results[learner]:
             if w["fell"]:
-                print(f"| {w['t0']:.0f} | fell | | | | | | | | | |")
+                print(f"| {round(w['t0'], 3):g} | fell | | | | | | | | | |")
                 continue
             period = f"{w['period']:.3f}" if w["period"] else "-"
             stride = f"{w['stride']:.4f}" if w["stride"] else "-"
-            print(f"| {w['t0']:.0f} | {w['heading_deg']:+.1f} | {w['vx']:.4f} | {w['v_head']:.4f} | {w['y']:+.3f} "
+            print(f"| {round(w['t0'], 3):g} | {w['heading_deg']:+.1f} | {w['vx']:.4f} | {w['v_head']:.4f} | {w['y']:+.3f} "
                   f"| {w['amp_z']:.3f} | {w['amp_x']:.3f} | {period} | {stride} | {w['abs_a5']:.3f} | {w['height']:.4f} |")
     if (args.run / "summary.json").is_file() and args.controller == "policy":
         print("\n" + "\n".join(overview(args.run, spec, results)))

@@ -1,8 +1,11 @@
 """The robot steps and walks under the CPG and reflexes, on both engines."""
 
 import dataclasses
+import sys
+from pathlib import Path
 
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from mjxcpg.control import walk
@@ -49,3 +52,20 @@ def test_hand_designed_start_is_the_hand_feedback_then_the_given_one(mujoco_sim)
     n = round(0.5 / mujoco_sim.control_dt)
     assert jnp.array_equal(half.a5[:, :n], outright.a5[:, :n])
     assert jnp.all(half.a5[:, n:] == 0.0)
+
+
+def test_the_start_window_measures_a_walk_by_hand():
+    """Two robots, 0.01 s periods over 3 s: one walks +0.04 m/s and never falls, one walks
+    backward at -0.02 m/s and falls at 1.0 s. Over 0.3-1.5 s the first's mean v_x is 0.04; the
+    second's is read up to its fall (0.3-0.99 s), -0.02, and its fall is at 1.0 s."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+    import start_window
+
+    t = np.arange(300) * 0.01
+    x = np.stack([0.04 * t, -0.02 * t])
+    fallen = np.zeros((2, 300), bool)
+    fallen[1, 100:] = True
+    fell, when, early_vx = start_window.start_measures(fallen, x, 0.01, (0.3, 1.5))
+    assert fell.tolist() == [False, True]
+    assert np.isnan(when[0]) and when[1] == pytest.approx(1.0)
+    assert early_vx == pytest.approx([0.04, -0.02], abs=1e-12)
