@@ -52,8 +52,7 @@ def walk_starts(sim, feedback, weights, hand_seconds: np.ndarray, seconds: float
     for hand in hand_seconds:
         trace = walk.walk_from_standing(sim, feedback, weights, seconds, hand_seconds=float(hand))
         rows.append(start_measures(np.asarray(trace.fallen), np.asarray(trace.forward_position), sim.control_dt, early))
-    fell, when, early_vx = (np.stack(column) for column in zip(*rows))
-    return fell, when, early_vx
+    return tuple(np.stack(column) for column in zip(*rows))
 
 
 def main() -> None:
