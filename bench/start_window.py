@@ -16,8 +16,10 @@ STEP`` (seconds), and prints:
     NPROC=1 .venv/bin/python bench/start_window.py runs/stats_heading
     NPROC=1 .venv/bin/python bench/start_window.py runs/stats_heading --grid 0 0.4 0.016
     NPROC=1 .venv/bin/python bench/start_window.py runs/stats_heading --controller hand --learners 60
+    NPROC=1 .venv/bin/python bench/start_window.py runs/stats_heading --grid 0 0.704 0.016 --set hand_fade_seconds=2
 
-``--learners`` defaults to every k_s >= 1 learner. ``--json FILE`` writes every walk there.
+``--learners`` defaults to every k_s >= 1 learner. ``--set NAME=VALUE`` changes a controller
+constant (``ControllerParams``) of the run's. ``--json FILE`` writes every walk there.
 """
 
 import argparse
@@ -65,11 +67,18 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--early", type=float, nargs=2, default=(0.3, 1.5), metavar=("FROM", "TO"))
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="controller constants changed from the run's, e.g. hand_fade_seconds=2")
     args = parser.parse_args()
     start, stop, step = args.grid
     if step <= 0 or stop < start or start < 0:
         raise SystemExit("start_window: --grid needs 0 <= START <= STOP and STEP > 0")
     spec, sim, task, state = runs.load_run(args.run)
+    try:
+        changes = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
+        sim = sim.rebuild(params=dataclasses.replace(sim.params, **changes))
+    except (ValueError, TypeError) as error:
+        raise SystemExit(f"start_window: --set needs NAME=VALUE with a ControllerParams name ({error})") from None
     chosen = (runs.check_learners(spec, args.learners) if args.learners
               else [k for k in range(spec.batch) if spec.k_s[k] >= 1])
     if not chosen:
@@ -79,7 +88,7 @@ def main() -> None:
     hands = np.round(np.arange(start, stop + step / 2, step), 6)
     fell, when, early_vx = walk_starts(sim, feedback, weights, hands, args.seconds, tuple(args.early))
 
-    print(f"{args.run}, {args.controller}: {len(chosen)} robots x {len(hands)} hand-overs "
+    print(f"{args.run}, {args.controller}{''.join(' ' + item for item in args.set)}: {len(chosen)} robots x {len(hands)} hand-overs "
           f"{hands[0]:g}-{hands[-1]:g} s, {args.seconds:g} s each")
     print(f"walks with a fall: {int(fell.sum())} of {fell.size} ({fell.mean():.1%}); "
           f"robots that fall after some start: {int(fell.any(axis=0).sum())} of {len(chosen)}")
@@ -102,7 +111,7 @@ def main() -> None:
               f"of those that start forward, {int(fell[~backward].sum())} of {int((~backward).sum())}")
     if args.json:
         args.json.write_text(json.dumps({
-            "run": str(args.run), "controller": args.controller, "learners": chosen, "hand_seconds": hands.tolist(),
+            "run": str(args.run), "controller": args.controller, "set": args.set, "learners": chosen, "hand_seconds": hands.tolist(),
             "seconds": args.seconds, "early": list(args.early), "fell": fell.tolist(),
             "fall_s": np.where(fell, when, -1.0).tolist(), "early_vx": early_vx.tolist()}, indent=1))
 

@@ -1,6 +1,7 @@
 """The controller's reflexes beyond the paper's: the heading reflex (a turn per step, through
-the swing leg's hip yaw), the slope reflex (the pelvis pitch integrated into the ankles) and
-the slope posture (the pelvis turned toward upright on an incline)."""
+the swing leg's hip yaw), the slope reflex (the pelvis pitch integrated into the ankles), the
+slope posture (the pelvis turned toward upright on an incline) and the hand-designed start's
+fade-out after the hand-over."""
 
 import dataclasses
 import math
@@ -11,8 +12,8 @@ import numpy as np
 import pytest
 
 from mjxcpg.control import walk
-from mjxcpg.control.controller import (ControllerParams, hand_feedback, heading_reflex, joint_targets,
-                                       posture_ankle_pitch, slope_reflex)
+from mjxcpg.control.controller import (ControllerParams, after_hand_start, hand_feedback, heading_reflex,
+                                       joint_targets, posture_ankle_pitch, slope_reflex)
 from mjxcpg.control.sim import make_simulation
 from mjxcpg.physics.model import Observation
 
@@ -117,3 +118,18 @@ def test_slope_posture_turns_the_pelvis_and_keeps_the_soles_flat(posture):
                - sim.model.geom_size[g][0] for g in spheres]
     np.testing.assert_allclose(heights, 0.001, atol=2e-5)  # float32 joint angles from the IK
     assert posture_ankle_pitch(params, sim.layout) == pytest.approx(-posture * slope)
+
+
+@pytest.mark.parametrize("steps, policy_a5, expected", [
+    (12, 0.3, 2.0 * 0.4),                             # before the hand-over: K d(theta_roll)/dt alone
+    (62, 0.3, 0.3 + (1 - 0.496 / 2) * 2.0 * 0.4),     # t = 62 x 8 ms: K d(theta_roll)/dt weighed 1 - t / 2 s
+    (238, 0.3, 0.3 + (1 - 1.904 / 2) * 2.0 * 0.4),
+    (250, 0.3, 0.3), (625, -0.2, -0.2)])              # from 2 s on, the policy's a_5 alone
+def test_the_hand_designed_start_fades_out_after_the_hand_over(steps, policy_a5, expected):
+    """K = 2 s, roll rate 0.4 rad/s, hand-over after 25 periods of 8 ms, fade over 2 s."""
+    params = ControllerParams(hand_gain=2.0, hand_fade_seconds=2.0, control_dt=0.008)
+    obs = observation(gyro=jnp.array([0.4, 0.1, 0.0]))
+    a5 = after_hand_start(params, obs, jnp.float32(policy_a5), jnp.int32(steps), jnp.int32(25))
+    assert float(a5) == pytest.approx(expected, abs=1e-6)  # float32 of numbers of order 1
+    off = dataclasses.replace(params, hand_fade_seconds=0.0)
+    assert float(after_hand_start(off, obs, jnp.float32(policy_a5), jnp.int32(steps), 0)) == pytest.approx(policy_a5)

@@ -40,6 +40,7 @@ class ControllerParams:
     control_dt: float = 0.008       # control period (s)
     cpg_substeps: int = 8           # Euler steps of the CPG per control period
     hand_gain: float = QRIO.gait.hand_gain  # K (s) of the hand-designed a_5 = K d(theta_roll)/dt
+    hand_fade_seconds: float = 0.0  # the hand-designed feedback's fade-out over a walk's start (s); 0: off
     h_heading: float = 0.0          # heading reflex gain (rad of turn per step per rad of heading); 0: off
     max_turn: float = 0.3           # the heading reflex's turn limit (rad per step), inside the hips' +-0.5
     heading_command: float = 0.0    # the heading the reflex steers to (rad, positive to the left)
@@ -89,11 +90,30 @@ def hand_feedback(params: ControllerParams, obs: Observation) -> jax.Array:
     return roll_rate_feedback(obs, params.hand_gain)
 
 
+def hand_fade(params: ControllerParams, obs: Observation, step: jax.Array) -> jax.Array:
+    """The hand-designed start's fade-out: ``hand_feedback`` weighted 1 - t / hand_fade_seconds
+    (t = ``step`` control periods from standing, weight 0 from then on), added to a_5 after
+    the hand-over.
+
+    Not in the paper.  A policy that takes over within the first second meets the CPG before
+    its stepping and propulsive oscillators have locked in phase; the hand-designed gain
+    locks them the forward way, while the learned policies' weaker roll-rate gain lets some
+    lock backward, and the robot walks backward and often falls (docs/learning.md).
+    """
+    weight = jnp.clip(1.0 - step * params.control_dt / params.hand_fade_seconds, 0.0, 1.0)
+    return weight * hand_feedback(params, obs)
+
+
 def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, step: jax.Array,
-                     hand_steps: int) -> jax.Array:
-    """``a5`` in a walk that starts as a learning trial does: the hand-designed feedback for
-    the first ``hand_steps`` control periods (``step`` counts them from 0), ``a5`` after."""
-    return jnp.where(step < hand_steps, hand_feedback(params, obs), a5) if hand_steps else a5
+                     hand_steps: jax.Array | int) -> jax.Array:
+    """The a_5 that drives the CPG when ``a5`` acts after the hand-designed start: the
+    hand-designed feedback for the first ``hand_steps`` control periods (``step`` counts them
+    from standing), ``a5`` after, plus the ``hand_fade`` if ``hand_fade_seconds`` > 0."""
+    if params.hand_fade_seconds:
+        a5 = a5 + hand_fade(params, obs, step)
+    if isinstance(hand_steps, int) and hand_steps == 0:
+        return a5
+    return jnp.where(step < hand_steps, hand_feedback(params, obs), a5)
 
 
 def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxcpg.control import estimator
-from mjxcpg.control.controller import ControllerParams, ControllerState, control_step, hand_feedback, init_state, joint_targets
+from mjxcpg.control.controller import ControllerParams, ControllerState, after_hand_start, control_step, hand_feedback, init_state, joint_targets
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.jaxutil.pytree import tree_where
 from mjxcpg.learning import actor_critic as ac
@@ -257,7 +257,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     v = policy.sample_action(mean, std, noise)
     hand = hand_feedback(task.controller, obs)
     after_handover = {"policy": policy.feedback_action(v, p.a_max, p.v_scale), "zero": jnp.zeros_like(hand), "hand": hand}
-    a5 = jnp.where(acting, after_handover[task.trial.actor], hand)
+    a5 = after_hand_start(task.controller, obs, after_handover[task.trial.actor], book.step, book.handover)
     previous_b = jnp.where(state.has_previous, state.previous_basis, 0.0)  # b_{t-1}, 0 at the first action
     traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt,
                                                      state.noise, previous_b), state.traces)

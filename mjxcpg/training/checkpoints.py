@@ -234,7 +234,8 @@ def restore_learners(out: Path, template: Any, spec: train.RunSpec,
                 text += f"; the damaged ones are moved to {set_aside(directory, [d for d, _ in damaged])}"
             notices.append(f"{out if directory.name == CHECKPOINTS else directory}: {text}")
         leaves.pop("leaves_sha256", None)
-        if not any(np.array_equal(leaves.pop("config_sha256", None), f) for f in fingerprints):
+        fingerprint = leaves.pop("config_sha256", None)
+        if not any(np.array_equal(fingerprint, f) for f in fingerprints):
             raise RunError(f"the checkpoint in {directory} was written by another config")
         learners = leaves.pop("learners", np.arange(spec.batch))
         if leaves.keys() != expected.keys() or np.any((learners < 0) | (learners >= spec.batch)) or any(

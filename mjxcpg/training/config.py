@@ -132,6 +132,7 @@ RANGES: dict[str, Range] = {
     "controller.max_turn": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "controller.heading_command": Range(low=-1.0, high=1.0),  # rad
     "controller.slope_reflex_s": NON_NEGATIVE,
+    "controller.hand_fade_seconds": NON_NEGATIVE,
     "controller.max_ankle_pitch": dataclasses.replace(NON_NEGATIVE, high=0.5),
     "controller.slope_posture": dataclasses.replace(NON_NEGATIVE, high=1.0),
     "physics_dt": POSITIVE,
@@ -271,7 +272,7 @@ ADDED_KEYS: tuple[dict[tuple[str, ...], Any], ...] = (
     {("controller", "h_heading"): 0.0, ("controller", "max_turn"): 0.3,
      ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2},
     {("controller", "slope_posture"): 0.0}, {("k_e",): None},
-    {("controller", "heading_command"): 0.0})
+    {("controller", "heading_command"): 0.0}, {("controller", "hand_fade_seconds"): 0.0})
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:
