@@ -38,14 +38,17 @@ class Trace(NamedTuple):
     fallen: jax.Array
     positive_work: jax.Array    # J, the actuators' over the period before (``Sensors``)
     qpos: jax.Array | None = None   # the full configuration, only from make_walk(record_qpos=True)
+    cpg_z: jax.Array | None = None  # the CPG's membrane states after the period, only from make_walk(record_cpg=True)
 
 
 def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: int,
-              feedback: FeedbackFn, record_qpos: bool = False, hand_steps: int = 0) -> Callable:
+              feedback: FeedbackFn, record_qpos: bool = False, hand_steps: int = 0,
+              record_cpg: bool = False) -> Callable:
     """A jitted ``walk(physics, controller_state, feedback_params) -> Trace`` over ``steps`` periods.
 
     ``feedback(obs, feedback_params)`` returns a_5 for one robot; it is ``vmap``-ed.
-    ``record_qpos`` also keeps each period's full configuration (e.g. to render the gait).
+    ``record_qpos`` also keeps each period's full configuration (e.g. to render the gait),
+    ``record_cpg`` the CPG's membrane states.
     ``hand_steps`` > 0: the hand-designed feedback acts for the first ``hand_steps`` periods,
     as at the start of a learning trial, and ``feedback`` from then on.
     """
@@ -63,7 +66,8 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
         fallen = fallen | jax.vmap(lambda o: has_fallen(layout, o))(obs)
         physics = engine.step(physics, ctrl)
         trace = Trace(obs.height, obs.forward_position, obs.force_left, obs.force_right,
-                      obs.roll, a5, fallen, obs.positive_work, sensors.qpos if record_qpos else None)
+                      obs.roll, a5, fallen, obs.positive_work, sensors.qpos if record_qpos else None,
+                      controller_state.cpg.z if record_cpg else None)
         return (physics, controller_state, fallen, fb_params), trace
 
     @xla.jit
@@ -77,14 +81,14 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
 
 
 def walk_from_standing(sim, feedback: FeedbackFn, fb_params, seconds: float,
-                       record_qpos: bool = False, hand_seconds: float = 0.0) -> Trace:
+                       record_qpos: bool = False, hand_seconds: float = 0.0, record_cpg: bool = False) -> Trace:
     """Robots on ``sim`` (a ``Simulation``), one per leading row of ``fb_params``, walk
     ``seconds`` from the standing pose in one batch; with ``hand_seconds`` > 0, the
     hand-designed feedback acts first for that long, as at a learning trial's start."""
     chex.assert_equal_shape_prefix(jax.tree.leaves(fb_params), 1)  # one row per robot, in every leaf
     batch = jax.tree.leaves(fb_params)[0].shape[0]
     run = make_walk(sim.engine, sim.layout, sim.params, round(seconds / sim.control_dt), feedback,
-                    record_qpos, round(hand_seconds / sim.control_dt))
+                    record_qpos, round(hand_seconds / sim.control_dt), record_cpg)
     return run(sim.engine.init(sim.qpos0, batch), initial_controller(batch), fb_params)
 
 
