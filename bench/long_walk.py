@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import cpg
-from mjxcpg.control.controller import control_step, hand_feedback
+from mjxcpg.control.controller import after_hand_start, control_step, hand_feedback
 from mjxcpg.control.sim import ROBOTS
 from mjxcpg.control.walk import has_fallen, initial_controller
 from mjxcpg.jaxutil import xla
@@ -46,16 +46,17 @@ def record_walk(sim, task, weights, feedback, steps: int):
     a_5, fallen, pelvis height."""
     layout, params, engine = sim.layout, sim.params, sim.engine
 
-    def one_robot(cpg_state, sensors, w):
+    def one_robot(cpg_state, sensors, w, step):
         obs = observe(layout, sensors)
-        a5 = feedback(obs, w)
+        a5 = after_hand_start(params, obs, feedback(obs, w), step, 0)  # the hand_fade, if the run has one
         cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
         return cpg_state, ctrl, a5, has_fallen(layout, obs), obs.height, obs.heading
 
-    def body(carry, _):
+    def body(carry, step):
         physics, cpg_state, fallen = carry
         sensors = engine.sensors(physics)
-        cpg_state, ctrl, a5, fell, height, heading = jax.vmap(one_robot)(cpg_state, sensors, weights)
+        cpg_state, ctrl, a5, fell, height, heading = jax.vmap(one_robot, (0, 0, 0, None))(cpg_state, sensors, weights,
+                                                                                         step)
         fallen = fallen | fell
         physics = engine.step(physics, ctrl, ~fallen)
         row = (sensors.qpos[:, :7], sensors.qvel[:, :2], heading, cpg.output(cpg_state.cpg), a5, fallen, height)
@@ -65,7 +66,7 @@ def record_walk(sim, task, weights, feedback, steps: int):
     def walk():
         batch = jax.tree.leaves(weights)[0].shape[0]
         carry = (engine.init(sim.qpos0, batch), initial_controller(batch), jnp.zeros(batch, bool))
-        return jax.lax.scan(body, carry, None, length=steps)[1]
+        return jax.lax.scan(body, carry, jnp.arange(steps))[1]
 
     return [np.asarray(x) for x in jax.device_get(walk())]
 
