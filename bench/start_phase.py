@@ -21,14 +21,11 @@ its backward starts less median over its forward ones).
 """
 
 import argparse
-import dataclasses
-from pathlib import Path
 
-import jax
 import numpy as np
+from start_window import add_start_arguments, chosen_actors, hand_over_times
 
 from mjxcpg.control import walk
-from mjxcpg.learning.learner import actor_feedback
 from mjxcpg.training import runs
 
 SECONDS = 4.0
@@ -73,27 +70,16 @@ def percentiles(values: np.ndarray, digits: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run", type=Path)
-    parser.add_argument("--learners", type=int, nargs="+", default=None, help="default: every k_s >= 1 learner")
-    parser.add_argument("--controller", choices=("policy", "hand", "zero"), default="policy")
-    parser.add_argument("--grid", type=float, nargs=3, default=(0.0, 0.72, 0.048), metavar=("START", "STOP", "STEP"),
-                        help="hand-over times (s), STOP included")
+    add_start_arguments(parser, (0.0, 0.72, 0.048))
     args = parser.parse_args()
-    start, stop, step = args.grid
-    if step <= 0 or stop < start or start < 0 or stop > SECONDS - 1.0:
-        raise SystemExit(f"start_phase: --grid needs 0 <= START <= STOP <= {SECONDS - 1:g} and STEP > 0")
+    hands = hand_over_times(args.grid, "start_phase", latest=SECONDS - 1.0)
     spec, sim, task, state = runs.load_run(args.run)
-    chosen = (runs.check_learners(spec, args.learners) if args.learners
-              else [k for k in range(spec.batch) if spec.k_s[k] >= 1])
-    if not chosen:
-        raise SystemExit("start_phase: the run has no k_s >= 1 learner; name some with --learners")
-    weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
-    feedback = actor_feedback(dataclasses.replace(task, trial=dataclasses.replace(task.trial, actor=args.controller)))
+    chosen, weights, feedback = chosen_actors(args, spec, task, state, "start_phase")
     dt = sim.control_dt
     early, steady = (slice(round(a / dt), round(b / dt)) for a, b in (EARLY, STEADY))
     k_s = np.array([spec.k_s[k] for k in chosen])
     rows = []  # per walk: k_s, early v_x, gain, early phase, steady phase, robot, hand-over
-    for hand in np.round(np.arange(start, stop + step / 2, step), 6):
+    for hand in hands:
         trace = walk.walk_from_standing(sim, feedback, weights, SECONDS, hand_seconds=float(hand), record_cpg=True)
         x = np.asarray(trace.forward_position, np.float64)
         cpg_z = np.swapaxes(np.asarray(trace.cpg_z), 0, 1)  # time x robots x 6
@@ -106,7 +92,7 @@ def main() -> None:
     rows = np.concatenate(rows)
     backward = rows[:, 1] < 0
     print(f"{args.run}, {args.controller}: {len(chosen)} robots x {len(rows) // len(chosen)} hand-overs "
-          f"{start:g}-{stop:g} s; gain over the first second after the hand-over, phase of q5 - q6 less q1 - q2")
+          f"{args.grid[0]:g}-{args.grid[1]:g} s; gain over the first second after the hand-over, phase of q5 - q6 less q1 - q2")
     print("\n10th, 50th and 90th percentiles:\n\n| start | walks | gain | phase 0.3-1.5 s (deg) | phase 3-4 s (deg) |"
           "\n|---|---|---|---|---|")
     for name, mask in (("backward", backward), ("forward", ~backward)):

@@ -57,35 +57,54 @@ def walk_starts(sim, feedback, weights, hand_seconds: np.ndarray, seconds: float
     return tuple(np.stack(column) for column in zip(*rows))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_start_arguments(parser: argparse.ArgumentParser, grid: tuple[float, float, float]) -> None:
+    """The arguments every start-of-walk tool takes: the run, its robots, what acts, the grid."""
     parser.add_argument("run", type=Path)
     parser.add_argument("--learners", type=int, nargs="+", default=None, help="default: every k_s >= 1 learner")
     parser.add_argument("--controller", choices=("policy", "hand", "zero"), default="policy")
-    parser.add_argument("--grid", type=float, nargs=3, default=(0.0, 3.0, 0.05), metavar=("START", "STOP", "STEP"),
+    parser.add_argument("--grid", type=float, nargs=3, default=grid, metavar=("START", "STOP", "STEP"),
                         help="hand-over times (s), STOP included")
+
+
+def hand_over_times(grid: tuple[float, float, float], tool: str, latest: float | None = None) -> np.ndarray:
+    """The hand-over times of ``--grid START STOP STEP``; a one-line exit if it is not a grid
+    (or, with ``latest``, if STOP is past it)."""
+    start, stop, step = grid
+    if step <= 0 or stop < start or start < 0 or (latest is not None and stop > latest):
+        bound = "STOP" if latest is None else f"STOP <= {latest:g}"
+        raise SystemExit(f"{tool}: --grid needs 0 <= START <= {bound} and STEP > 0")
+    return np.round(np.arange(start, stop + step / 2, step), 6)
+
+
+def chosen_actors(args: argparse.Namespace, spec, task, state, tool: str):
+    """The robots walked (``--learners``, default every k_s >= 1 learner), their final weights
+    and what acts after the hand-over (``--controller``, from ``actor_feedback``)."""
+    chosen = (runs.check_learners(spec, args.learners) if args.learners
+              else [k for k in range(spec.batch) if spec.k_s[k] >= 1])
+    if not chosen:
+        raise SystemExit(f"{tool}: the run has no k_s >= 1 learner; name some with --learners")
+    weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
+    feedback = actor_feedback(dataclasses.replace(task, trial=dataclasses.replace(task.trial, actor=args.controller)))
+    return chosen, weights, feedback
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_start_arguments(parser, (0.0, 3.0, 0.05))
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--early", type=float, nargs=2, default=(0.3, 1.5), metavar=("FROM", "TO"))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
                         help="controller constants changed from the run's, e.g. hand_fade_seconds=2")
     args = parser.parse_args()
-    start, stop, step = args.grid
-    if step <= 0 or stop < start or start < 0:
-        raise SystemExit("start_window: --grid needs 0 <= START <= STOP and STEP > 0")
+    hands = hand_over_times(args.grid, "start_window")
     spec, sim, task, state = runs.load_run(args.run)
     try:
         changes = {name: float(value) for name, value in (item.split("=", 1) for item in args.set)}
         sim = sim.rebuild(params=dataclasses.replace(sim.params, **changes))
     except (ValueError, TypeError) as error:
         raise SystemExit(f"start_window: --set needs NAME=VALUE with a ControllerParams name ({error})") from None
-    chosen = (runs.check_learners(spec, args.learners) if args.learners
-              else [k for k in range(spec.batch) if spec.k_s[k] >= 1])
-    if not chosen:
-        raise SystemExit("start_window: the run has no k_s >= 1 learner; name some with --learners")
-    weights = jax.tree.map(lambda w: w[np.asarray(chosen)], state.learners.weights)
-    feedback = actor_feedback(dataclasses.replace(task, trial=dataclasses.replace(task.trial, actor=args.controller)))
-    hands = np.round(np.arange(start, stop + step / 2, step), 6)
+    chosen, weights, feedback = chosen_actors(args, spec, task, state, "start_window")
     fell, when, early_vx = walk_starts(sim, feedback, weights, hands, args.seconds, tuple(args.early))
 
     print(f"{args.run}, {args.controller}{''.join(' ' + item for item in args.set)}: {len(chosen)} robots x {len(hands)} hand-overs "
