@@ -166,7 +166,7 @@ class ReproductionBudget:
     controls: tuple[str, ...] = ("learning_off", "learning_off_min_sigma", "zero_feedback")
     control_trials: int = 100           # each control learner's budget, as the 70-learner study's
     transfer_repeats: int = 10          # walks per policy on each hardware robot, each with other noise
-    online_robot: str = "harsh"         # the hardware robot online learning repairs policies on
+    online_robot: str = "harsher"       # the hardware robot online learning repairs policies on
     online_start: str = "standing"      # its trials from standing, as the transfer walks (online.STARTS)
     # sigma restarts at its initial value (online.EXPLORATIONS): at the learned one, exploration
     # and the mean's steps ((sigma / sigma_0)^2 of the first) are small, and fewer policies are

@@ -136,7 +136,7 @@ def test_the_package_names_are_the_apis():
 
 @pytest.mark.parametrize("argv, message", [
     (["walk", "--checkpoint", "/nonexistent/run", "--controller", "stepping"], "give one of them"),
-    (["eval", "--run", "/nonexistent/run", "--transfer-repeats", "3"], "applies to --robot hardware or harsh only"),
+    (["eval", "--run", "/nonexistent/run", "--transfer-repeats", "3"], "applies to --robot hardware, harsh or harsher only"),
 ])
 def test_a_flag_that_does_not_apply_is_refused_not_ignored(argv, message, capsys):
     assert main(argv) == 2

@@ -93,6 +93,20 @@ def test_the_harsh_robot_is_what_docs_hardware_md_says():
     assert make_simulation("mujoco", robot="hardware").model.geom_solref[colliding, 0] == pytest.approx(0.02)
 
 
+
+def test_the_harsher_robot_is_the_harsh_one_with_more_latency_on_a_softer_floor():
+    """docs/hardware.md's harsher column, by hand: 6 periods (48 ms) of latency and a contact
+    time constant of 0.06 s (three times MuJoCo's 0.02), every other mismatch the harsh robot's."""
+    harsh, harsher = make_simulation("mujoco", robot="harsh"), make_simulation("mujoco", robot="harsher")
+    colliding = (harsher.model.geom_contype != 0) | (harsher.model.geom_conaffinity != 0)
+    assert harsher.engine.mismatch.latency_periods == 6
+    assert harsher.model.geom_solref[colliding, 0] == pytest.approx(0.06)
+    assert harsher.model.actuator_gainprm[:, 0] == pytest.approx(90.0)
+    np.testing.assert_array_equal(harsher.model.body_mass, harsh.model.body_mass)
+    others = {f.name for f in dataclasses.fields(hardware.HardwareMismatch)} - {"latency_periods",
+                                                                                  "contact_timeconst_scale"}
+    assert all(getattr(hardware.HARSHER, name) == getattr(hardware.HARSH, name) for name in others)
+
 # ---------------------------------------------------------------- latency and noise
 
 class Recorder(engines.Engine):

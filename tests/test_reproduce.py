@@ -19,7 +19,8 @@ BUDGET = api.ReproductionBudget(
     eval_params=api.EvalParams(fixed_point_steps=6, perturbations=3, slope_seconds=2.0, max_slope_deg=1,
                                push_rounds=1))
 RESULTS = ("summary.json", "returns.json", "stats.json", "table1.md", "report.md", "eval/evaluation.json",
-           "hardware/eval/evaluation.json", "harsh/eval/evaluation.json", "controls/learning_off/returns.json",
+           "hardware/eval/evaluation.json", "harsh/eval/evaluation.json",
+           "harsher/eval/evaluation.json", "controls/learning_off/returns.json",
            "controls/learning_off_min_sigma/returns.json", "controls/zero_feedback/returns.json")
 
 
@@ -41,7 +42,7 @@ def test_the_report_has_every_section(reproduced):
     for section in ("## Table 1: learning", "## Learning curves (Fig 4)", "## Policy maps (Fig 5)",
                     "## Velocity against k_s (Fig 7)", "## Return-map stability (Fig 8)", "## Slopes", "## Pushes",
                     "## Transfer to the hardware robot", "## Transfer to the `harsh` hardware robot",
-                    "## Online learning on the `harsh` hardware robot"):
+                    "## Transfer to the `harsher` hardware robot", "## Online learning on the `harsher` hardware robot"):
         assert section in headings, section
     # every section says how to make it alone
     assert report.count("Alone: `mjxcpg ") >= 4

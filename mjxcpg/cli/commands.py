@@ -202,7 +202,7 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     fields = ["seed", "hand_seconds"] + [o.field for e in EVALUATIONS for o in e.options]
     overrides = {name: getattr(args, name) for name in fields if getattr(args, name) is not None}
     if args.transfer_repeats is not None and args.robot == "nominal":
-        raise UserError("--transfer-repeats applies to --robot hardware or harsh only")
+        raise UserError("--transfer-repeats applies to --robot hardware, harsh or harsher only")
     repeats = {} if args.transfer_repeats is None else {"transfer_repeats": args.transfer_repeats}
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
     return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,

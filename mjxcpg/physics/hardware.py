@@ -61,7 +61,10 @@ HARDWARE = HardwareMismatch()
 HARSH = HardwareMismatch(mass_spread=0.15, inertia_spread=0.15, sole_friction=0.5, servo_kp_scale=0.6,
                          joint_damping_add=1.0, armature_scale=3.0, latency_periods=4, gyro_noise_std=0.1,
                          gyro_bias_std=0.02, force_noise_std=3.0, contact_timeconst_scale=2.0)
-MISMATCHES = {"hardware": HARDWARE, "harsh": HARSH}  # the robots that stand in for a physical one
+# ``HARSH`` with the two mismatches pushed one step further again, as far beyond ``HARSH`` as it
+# is beyond ``HARDWARE``: actuation latency and floor compliance (``docs/hardware.md``).
+HARSHER = dataclasses.replace(HARSH, latency_periods=6, contact_timeconst_scale=3.0)
+MISMATCHES = {"hardware": HARDWARE, "harsh": HARSH, "harsher": HARSHER}  # the robots that stand in for a physical one
 
 
 def body_factors(model: mujoco.MjModel, mismatch: HardwareMismatch) -> tuple[np.ndarray, np.ndarray]:
