@@ -15,6 +15,13 @@ class UserError(Exception):
     """Bad input: reported as one line, exit status 2."""
 
 
+def hardware_robots_text() -> str:
+    """The hardware robots' names as help and errors list them: "hardware, harsh or harsher"."""
+    from mjxcpg.physics.hardware import MISMATCHES
+    *others, last = MISMATCHES
+    return f"{', '.join(others)} or {last}"
+
+
 def cmd_walk(args: argparse.Namespace) -> dict:
     import jax.numpy as jnp
 
@@ -202,7 +209,7 @@ def cmd_eval(args: argparse.Namespace) -> dict:
     fields = ["seed", "hand_seconds"] + [o.field for e in EVALUATIONS for o in e.options]
     overrides = {name: getattr(args, name) for name in fields if getattr(args, name) is not None}
     if args.transfer_repeats is not None and args.robot == "nominal":
-        raise UserError("--transfer-repeats applies to --robot hardware, harsh or harsher only")
+        raise UserError(f"--transfer-repeats applies to --robot {hardware_robots_text()} only")
     repeats = {} if args.transfer_repeats is None else {"transfer_repeats": args.transfer_repeats}
     progress = None if args.quiet else (lambda text: print(f"eval: {text}", file=sys.stderr, flush=True))
     return api.evaluate_policies(args.run, args.learner or None, args.engine, args.robot,

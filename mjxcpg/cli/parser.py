@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import mjxcpg
 from mjxcpg.cli.commands import (cmd_bench, cmd_controls, cmd_eval, cmd_learn, cmd_render, cmd_reproduce,
-                                 cmd_sweep, cmd_transfer, cmd_walk)
+                                 cmd_sweep, cmd_transfer, cmd_walk, hardware_robots_text)
 from mjxcpg.training import checks
 
 DESCRIPTION = "The mjxcpg command line: reproduce, walk, learn, sweep, controls, transfer, eval, render, bench."
@@ -140,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--exploration", choices=EXPLORATIONS, default=None,
                        help="with --from: sigma starts as learned (the default) or at its initial value")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
-                       help="robot to continue on with --from (hardware, harsh, harsher: docs/hardware.md)")
+                       help=f"robot to continue on with --from ({hardware_robots_text()}: docs/hardware.md)")
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,
                        help="with --from: reward from the robot's sensors (default on hardware) "
                             "or the simulator's state (default on nominal)")
@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--engine", choices=ENGINES, default=None, help="default: the run's")
     evaluation.add_argument("--robot", choices=ROBOTS, default="nominal", help="robot the policies walk on")
     evaluation.add_argument("--seed", type=_number(checks.SEED), default=None,
-                            help="seed of the perturbations and, with --robot hardware, harsh or harsher, of the sensor noise "
+                            help=f"seed of the perturbations and, with --robot {hardware_robots_text()}, of the sensor noise "
                                  "(default 0)")
     evaluation.add_argument("--hand-seconds", type=_number(checks.NON_NEGATIVE), default=None,
                             help="hand-designed feedback first for this long, as at a learning trial's start "
@@ -214,10 +214,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_argument("--skip", nargs="+", choices=tuple(e.name for e in EVALUATIONS),
                             help=f"evaluations to leave out ({only_on})")
     evaluation.add_argument("--transfer-repeats", type=count, default=None,
-                            help="with --robot hardware, harsh or harsher only: walks per policy, each with other sensor noise "
+                            help=f"with --robot {hardware_robots_text()} only: walks per policy, each with other sensor noise "
                                  "(default 20)")
     evaluation.add_argument("--out", help="write eval/ and report.md here (default: the run directory; "
-                                           "with --robot hardware, harsh or harsher, its subdirectory of that name)")
+                                           f"with --robot {hardware_robots_text()}, its subdirectory of that name)")
     evaluation.add_argument("--force", action="store_true", help="replace an earlier evaluation in OUT")
     evaluation.add_argument("--quiet", action="store_true", help="no progress lines")
     evaluation.add_argument("--json", action="store_true", help="print one JSON object as the last line")
