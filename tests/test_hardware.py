@@ -284,6 +284,18 @@ def test_online_learning_bad_input_is_one_line(argv, message, capsys, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("exploration", ["1.5", "1", "0", "1e-50", "0.9999999999", "nan", "wide"])
+def test_online_exploration_outside_eq26_range_is_one_line(exploration, capsys, tmp_path):
+    """sigma = sigmoid(w^sigma) lies in (0, 1), and float32 rounds sigmoid(log(1e-50 / (1 - 1e-50)))
+    to 0 and 1 - 1e-10 to 1: any such restart value is refused by the parser."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(["learn", "--from", "/nonexistent/run", "--exploration", exploration, "--out", str(tmp_path / "out")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "or a sigma from 1e-06 to 0.999999" in err and "\n" not in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_online_learning_never_replaces_its_source(finished_quick, capsys):
     before = {p: p.read_bytes() for p in finished_quick.rglob("*") if p.is_file() and p.name != ".lock"}
     for out in (finished_quick, finished_quick.parent):  # the run itself, or a directory holding it
@@ -357,12 +369,13 @@ def test_online_learning_off_keeps_the_weights_it_started_from(learned_run, tmp_
 def test_online_learning_can_restart_sigma_at_its_initial_value(tmp_path):
     """exploration="initial": sigma starts at eq (26)'s sigmoid(0) = 0.5 (the learner's
     init_w_sigma), the critic and mean as learned; "learned" keeps the source's sigma,
-    sigmoid(-1.5) = 0.18243; learning off, so nothing moves them during the trials."""
+    sigmoid(-1.5) = 0.18243; a number is the sigma to start at; learning off, so nothing
+    moves them during the trials."""
     source = make_learned_run(tmp_path / "source", w_sigma=-1.5)
     _, _, _, before = runs.load_run(source)
     first_sigma = {}
-    for exploration in online.EXPLORATIONS:
-        out = tmp_path / exploration
+    for exploration in online.EXPLORATIONS + (0.2,):
+        out = tmp_path / str(exploration)
         online.learn_online(source, [0], out, trials=2, robot="harsh", learning=False, exploration=exploration,
                             progress=False, tensorboard=False)
         (row,) = json.loads((out / "online.json").read_text())["learners"]
@@ -373,6 +386,7 @@ def test_online_learning_can_restart_sigma_at_its_initial_value(tmp_path):
                                           np.asarray(getattr(before.learners.weights, name)))
     assert first_sigma["initial"] == 0.5  # exact in float32
     assert first_sigma["learned"] == pytest.approx(1.0 / (1.0 + np.exp(1.5)), rel=1e-6)  # float32 rounding
+    assert first_sigma[0.2] == pytest.approx(0.2, rel=1e-6)  # w^sigma = log(0.2 / 0.8), rounded to float32
 
 
 def test_online_trials_from_standing_hand_over_at_the_first_period():

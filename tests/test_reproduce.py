@@ -83,6 +83,17 @@ def test_an_interrupted_stage_ends_as_an_uninterrupted_run(reproduced, tmp_path,
     assert results(out) == {name: text.replace(str(reproduced), "RUN") for name, text in results(reproduced).items()}
 
 
+def test_the_online_sigma_as_text_is_the_same_setting(reproduced, monkeypatch):
+    """--online-exploration's text "0.20" names the number 0.2, the default, so the finished
+    reproduction is the same settings: nothing runs again, nothing is refused."""
+    assert BUDGET.online_exploration == 0.2
+    monkeypatch.setattr(online, "learn_online", lambda *a, **k: pytest.fail("online learning ran again"))
+    before = results(reproduced)
+    api.reproduce("quick", reproduced, budget=api.ReproductionBudget(**{**vars(BUDGET), "online_exploration": "0.20"}),
+                  progress=False)
+    assert results(reproduced) == before
+
+
 def test_other_settings_in_the_same_directory_are_refused(reproduced):
     other = api.ReproductionBudget(**{**vars(BUDGET), "control_trials": 5})
     with pytest.raises(RunError, match="reproduction of other settings"):

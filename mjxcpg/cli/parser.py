@@ -31,6 +31,16 @@ def _number(rule: checks.Range) -> Callable[[str], int | float]:
     return parse
 
 
+def _exploration(text: str) -> str | float:
+    """An argparse type: the flag's text as an online exploration (``online.parse_exploration``)."""
+    from mjxcpg.evaluation.online import parse_exploration
+
+    try:
+        return parse_exploration(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.control.sim import ROBOTS
     from mjxcpg.robots import PLATFORMS
@@ -40,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     from mjxcpg.physics.model import MAX_SLOPE_DEG
     from mjxcpg.training.config import config_names, range_of
     from mjxcpg.evaluation.controls import CONTROLS
-    from mjxcpg.evaluation.online import EXPLORATIONS, REWARD_SOURCES, STARTS
+    from mjxcpg.evaluation.online import REWARD_SOURCES, STARTS
     from mjxcpg.training.runs import CHECKPOINT_EVERY_S
 
     seconds = _number(checks.POSITIVE)
@@ -70,8 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"the hardware robot of online learning (default {budget.online_robot}; docs/hardware.md)")
     rep.add_argument("--online-start", choices=STARTS, default=None,
                      help=f"how online trials start (default {budget.online_start})")
-    rep.add_argument("--online-exploration", choices=EXPLORATIONS, default=None,
-                     help=f"the sigma online learning starts from (default {budget.online_exploration})")
+    rep.add_argument("--online-exploration", type=_exploration, default=None, metavar="{learned,initial,SIGMA}",
+                     help=f"the sigma online learning starts from: as learned, its initial value or SIGMA "
+                          f"(default {budget.online_exploration})")
     rep.add_argument("--online-learners", type=_number(checks.NON_NEGATIVE_COUNT), default=None,
                      help=f"at most this many failing policies learn on that robot (default "
                           f"{budget.online_learners})")
@@ -137,8 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--start", choices=STARTS, default=None,
                        help="with --from: hand (the run's hand-designed start, the default) or standing "
                             "(the policy from the first period)")
-    learn.add_argument("--exploration", choices=EXPLORATIONS, default=None,
-                       help="with --from: sigma starts as learned (the default) or at its initial value")
+    learn.add_argument("--exploration", type=_exploration, default=None, metavar="{learned,initial,SIGMA}",
+                       help="with --from: sigma starts as learned (the default), at its initial value or at "
+                            "SIGMA (from 1e-6 to 1 - 1e-6)")
     learn.add_argument("--robot", choices=ROBOTS, default="nominal",
                        help=f"robot to continue on with --from ({hardware_robots_text()}: docs/hardware.md)")
     learn.add_argument("--reward", choices=REWARD_SOURCES, default=None,

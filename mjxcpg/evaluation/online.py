@@ -14,7 +14,8 @@ with the learner and the trial protocol of their run except:
 * with ``start="standing"``, every trial starts from standing with the policy acting from
   the first period (no hand-designed start): the start is then part of what is learned;
 * with ``exploration="initial"``, sigma starts from its initial value (the learner's
-  ``init_w_sigma``) instead of the learned one, the critic and mean as learned;
+  ``init_w_sigma``) instead of the learned one, the critic and mean as learned; with a
+  number (``parse_exploration``), sigma starts at that value;
 * with ``learning=False``, the control: the same trials, exploration noise included, with
   every learning rate 0.
 
@@ -34,6 +35,7 @@ from typing import Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjxcpg.control.estimator import EstimatorParams
 from mjxcpg.learning.learner import init_learner
@@ -44,8 +46,30 @@ from mjxcpg.training import config, runs, train
 
 REWARD_SOURCES = ("estimate", "truth")
 STARTS = ("hand", "standing")  # a trial starts with the run's hand-designed start, or from standing
-# sigma the online learning starts from: the run's learned one, or the initial one of its learner
+# sigma the online learning starts from: the run's learned one, or the initial one of its learner;
+# ``parse_exploration`` also takes a sigma value to restart at
 EXPLORATIONS = ("learned", "initial")
+
+
+# the restart sigmas float32 holds apart from 0 and 1 through eq (26)'s sigmoid
+SIGMA_RANGE = (1e-6, 1.0 - 1e-6)
+
+
+def parse_exploration(value: str | float) -> str | float:
+    """``value`` as an online exploration: one of ``EXPLORATIONS``, or a sigma in
+    ``SIGMA_RANGE`` (eq (26)'s range, (0, 1), as far as float32 resolves it) that every
+    learner's sigma restarts at."""
+    if value in EXPLORATIONS:
+        return value
+    try:
+        sigma = float(value)
+    except (TypeError, ValueError):
+        sigma = float("nan")
+    low, high = SIGMA_RANGE
+    if not low <= sigma <= high:
+        raise ValueError(f"unknown exploration {value!r}; choose one of {', '.join(EXPLORATIONS)} "
+                         f"or a sigma from {low:g} to {high:g}")
+    return sigma
 
 
 def continued_spec(spec: train.RunSpec, learners: Sequence[int], trials: int, trial_seconds: float,
@@ -67,14 +91,14 @@ def continued_spec(spec: train.RunSpec, learners: Sequence[int], trials: int, tr
 
 def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int = 400, robot: str = "hardware",
                  reward: str | None = None, engine: str | None = None, trial_seconds: float = 16.0,
-                 learning: bool = True, start: str = "hand", exploration: str = "learned", force: bool = False,
+                 learning: bool = True, start: str = "hand", exploration: str | float = "learned", force: bool = False,
                  progress: bool = True, tensorboard: bool = True) -> dict:
     """Continue ``learners`` of the run in ``source`` on ``robot``, together; write ``out``.
 
     ``reward``: "estimate" (the robot's sensors; the default on a hardware robot) or
     "truth" (the simulator's state; the default on the nominal one).  ``learning=False``
     runs the control with learning off; ``start`` is one of ``STARTS``, ``exploration`` one of
-    ``EXPLORATIONS``.
+    ``EXPLORATIONS`` or a sigma to restart at (``parse_exploration``).
     Returns the summary that ``out/online.json`` holds, without the per-trial lists.
     """
     reward = reward or ("estimate" if robot in hardware.MISMATCHES else "truth")
@@ -82,8 +106,7 @@ def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int =
         raise ValueError(f"unknown reward source {reward!r}; choose one of {', '.join(REWARD_SOURCES)}")
     if start not in STARTS:
         raise ValueError(f"unknown start {start!r}; choose one of {', '.join(STARTS)}")
-    if exploration not in EXPLORATIONS:
-        raise ValueError(f"unknown exploration {exploration!r}; choose one of {', '.join(EXPLORATIONS)}")
+    exploration = parse_exploration(exploration)
     source_spec, _ = runs.read_config(source)  # a bad source is refused before ``out`` is made
     learners = runs.check_learners(source_spec, list(learners))
     if not learners:
@@ -98,7 +121,7 @@ def learn_online(source: Path, learners: Sequence[int], out: Path, trials: int =
 
 def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: int, robot: str, reward: str,
                          engine: str | None, trial_seconds: float, learning: bool, start: str,
-                         exploration: str, progress: bool, tensorboard: bool) -> dict:
+                         exploration: str | float, progress: bool, tensorboard: bool) -> dict:
     """``learn_online`` once ``out`` is locked and empty."""
     source_spec, sim, _, source_state = runs.load_run(source, engine, robot=robot)
     spec = continued_spec(source_spec, learners, trials, trial_seconds, learning, start)
@@ -112,6 +135,9 @@ def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: i
     weights = jax.tree.map(lambda w: w[rows], source_state.learners.weights)
     if exploration == "initial":
         weights = weights._replace(sigma=fresh.weights.sigma)  # init_learner's: the learner's init_w_sigma
+    elif exploration != "learned":  # eq (26) inverted: w^sigma = log(sigma / (1 - sigma))
+        w_sigma = float(np.log(exploration / (1.0 - exploration)))
+        weights = weights._replace(sigma=jnp.full_like(fresh.weights.sigma, w_sigma))
     fresh = fresh._replace(weights=weights)
     state = train.RunState(physics=sim.engine.init(sim.qpos0, len(learners)), learners=fresh)
 

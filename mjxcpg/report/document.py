@@ -92,12 +92,18 @@ def evaluation_sections(eval_dir: Path, names: tuple[str, ...] | None = None) ->
     return evaluation.render_sections(saved, summary, eval_dir) + _command(command)
 
 
+def exploration_words(exploration: str | float) -> str:
+    """How online learning's sigma starts (``online.parse_exploration``'s values), in words."""
+    if exploration == "initial":
+        return "sigma restarted at its initial value"
+    return "sigma as learned" if exploration == "learned" else f"sigma restarted at {exploration:g}"
+
+
 def _exploration_words(online_record: dict | None) -> str:
     """How the online learners' sigma started, as ``online.json`` records it."""
     if online_record is None:
         return ""
-    return (" (sigma restarted at its initial value)" if online_record.get("exploration") == "initial"
-            else " (sigma as learned)")
+    return f" ({exploration_words(online_record.get('exploration', 'learned'))})"
 
 
 def online_section(run_dir: Path, commands: dict, robot: str = "harsh") -> list[str]:
