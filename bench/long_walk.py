@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control import cpg
-from mjxcpg.control.controller import after_hand_start, control_step, hand_feedback
+from mjxcpg.control.controller import after_hand_start, control_step, hand_feedback, split_feedback
 from mjxcpg.control.sim import ROBOTS
 from mjxcpg.control.walk import has_fallen, initial_controller
 from mjxcpg.jaxutil import xla
@@ -48,9 +48,9 @@ def record_walk(sim, task, weights, feedback, steps: int):
 
     def one_robot(cpg_state, sensors, w, step):
         obs = observe(layout, sensors)
-        a5 = after_hand_start(params, obs, feedback(obs, w), step, 0)  # the hand_fade, if the run has one
-        cpg_state, ctrl = control_step(params, layout, cpg_state, obs, a5)
-        return cpg_state, ctrl, a5, has_fallen(layout, obs), obs.height, obs.heading
+        action = after_hand_start(params, obs, feedback(obs, w), step, 0)  # the hand_fade, if the run has one
+        cpg_state, ctrl = control_step(params, layout, cpg_state, obs, action)
+        return cpg_state, ctrl, split_feedback(action)[0], has_fallen(layout, obs), obs.height, obs.heading
 
     def body(carry, step):
         physics, cpg_state, fallen = carry

@@ -62,6 +62,7 @@ def test_spelled_out_learners_pass_through():
     ("k_s_values = [1.0]\nk_e = [1.0]\n", "k_e"),
     ("k_s = [1.0, 2.0]\nseeds = [1, 2]\nk_e = [1.0]\n", "k_e"),
     ("k_s = [1.0]\nseeds = [1]\nk_e = [-0.5]\n", r"k_e\[0\]"),
+    ("k_s = [1.0]\nseeds = [1]\n[learner]\nstepping_a_max = -0.4\n", r"learner.stepping_a_max"),
 ])
 def test_bad_generator_names_the_key(tmp_path, text, key):
     path = tmp_path / "bad.toml"

@@ -8,6 +8,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from mjxcpg.learning import actor_critic as ac
 from mjxcpg.learning import ngnet, policy
@@ -152,6 +153,65 @@ def test_correlated_noise_gradients_match_autodiff():
             # float32 ratios of order 1 / (1 - a^2) = 13 at a = exp(-0.04): a relative 1e-3
             np.testing.assert_allclose(closed_mean, auto_mean, rtol=1e-3, atol=1e-5 * scale)
             np.testing.assert_allclose(closed_sigma, auto_sigma, rtol=1e-3, atol=1e-4 * abs(float(auto_sigma)) + 1e-6)
+
+
+@jax.jit
+def _two_output_gradients_both_ways(x, v, w_mean, w_sigma):
+    """Two independent Gaussian outputs: autodiff of the joint log-density written out here,
+    ln N(v_1; mu_1, sigma_1^2) + ln N(v_2; mu_2, sigma_2^2), against the closed form."""
+    def log_pi(w_mean, w_sigma):
+        b = ngnet.normalized_basis(BASIS, x)
+        mu = jnp.stack([jnp.sum(w_mean[j] * b) for j in range(2)])
+        return jnp.sum(jax.scipy.stats.norm.logpdf(v, mu, jax.nn.sigmoid(w_sigma)))
+
+    b = ngnet.normalized_basis(BASIS, x)
+    closed = policy.log_policy_gradients(v, ngnet.ngnet_value(w_mean, b), ngnet.policy_std(w_sigma), b)
+    return closed, jax.grad(log_pi, argnums=(0, 1))(w_mean, w_sigma)
+
+
+def test_two_output_gradients_match_autodiff_of_the_joint_density():
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        x = jnp.asarray(rng.uniform(-2.5, 2.5, 2), jnp.float32)
+        w_mean = jnp.asarray(rng.normal(0.0, 1.0, (2, NUM_BASIS)), jnp.float32)
+        w_sigma = jnp.asarray(rng.uniform(-2.0, 2.0, 2), jnp.float32)
+        v = jnp.asarray(rng.normal(0.0, 1.5, 2), jnp.float32)
+        (closed_mean, closed_sigma), (auto_mean, auto_sigma) = _two_output_gradients_both_ways(
+            x, v, w_mean, w_sigma)
+        assert closed_mean.shape == (2, NUM_BASIS) and closed_sigma.shape == (2,)
+        scale = float(jnp.max(jnp.abs(auto_mean)))
+        np.testing.assert_allclose(closed_mean, auto_mean, rtol=1e-4, atol=1e-6 * scale)
+        np.testing.assert_allclose(closed_sigma, auto_sigma, rtol=1e-4, atol=1e-6)
+
+
+def test_two_output_traces_are_each_outputs_one_output_traces():
+    """The outputs are independent, so each one's traces after a few steps are those of a
+    one-output learner fed that output's samples alone (same TD-free trace law, eq 21)."""
+    two = ac.LearnerParams(stepping_a_max=0.4, mean_step_sigma_power=2.0)
+    one = ac.LearnerParams(mean_step_sigma_power=2.0)
+    rng = np.random.default_rng(4)
+    w_mean = jnp.asarray(rng.normal(0.0, 0.5, (2, NUM_BASIS)), jnp.float32)
+    w_sigma = jnp.asarray([-0.3, 0.7], jnp.float32)
+    pair, single = ac.init_traces(NUM_BASIS, 2), [ac.init_traces(NUM_BASIS) for _ in range(2)]
+    for _ in range(5):
+        b = ngnet.normalized_basis(BASIS, jnp.asarray(rng.uniform(-2, 2, 2), jnp.float32))
+        mean, std = ngnet.ngnet_value(w_mean, b), ngnet.policy_std(w_sigma)
+        v = jnp.asarray(rng.normal(0.0, 1.0, 2), jnp.float32)
+        pair = ac.accumulate_traces(two, pair, b, v, mean, std, 0.008)
+        single = [ac.accumulate_traces(one, single[j], b, v[j], mean[j], std[j], 0.008) for j in range(2)]
+    for j in range(2):
+        np.testing.assert_allclose(pair.mean[j], single[j].mean, rtol=1e-6)
+        np.testing.assert_allclose(pair.sigma[j], single[j].sigma, rtol=1e-6)
+    np.testing.assert_allclose(pair.critic, single[0].critic, rtol=1e-6)
+
+
+def test_two_output_action_is_eq_10_per_output():
+    params = ac.LearnerParams(a_max=3.0, unit_slope=True, stepping_a_max=0.4)
+    v = jnp.asarray([1.2, -0.3], jnp.float32)
+    expected = [3.0 * (2 / math.pi) * math.atan(math.pi / 2 * 1.2 / 3.0),
+                0.4 * (2 / math.pi) * math.atan(math.pi / 2 * -0.3 / 0.4)]
+    np.testing.assert_allclose(params.action(v), expected, rtol=1e-6)
+    assert params.outputs == 2 and ac.LearnerParams().outputs == 1
 
 
 def test_correlated_noise_is_a_unit_variance_ar1():
@@ -380,3 +440,13 @@ def test_actor_critic_improves_a_toy_control_problem():
     # the target x = 1 needs a = 1, i.e. v = 2/pi ~ 0.64: the mean at x = 0 pushes up
     assert np.median(mean_at_zero) > 0.3, mean_at_zero
     assert np.mean(mean_at_zero > 0.0) >= 0.75, mean_at_zero
+
+
+def test_policy_std_weight_inverts_eq_26():
+    """w^sigma = log(sigma / (1 - sigma)): log(0.25) at sigma 0.2, 0 at 0.5, and the sigmoid of
+    eq (26) gives sigma back."""
+    assert ngnet.policy_std_weight(0.2) == pytest.approx(math.log(0.25))
+    assert ngnet.policy_std_weight(0.5) == 0.0
+    for s in (1e-6, 0.3, 0.9):
+        # float32 w^sigma of up to 14 in size: a relative 1e-7 of it moves sigma by 2e-6 at most
+        assert float(ngnet.policy_std(jnp.float32(ngnet.policy_std_weight(s)))) == pytest.approx(s, rel=1e-5)

@@ -133,3 +133,34 @@ def test_the_hand_designed_start_fades_out_after_the_hand_over(steps, policy_a5,
     assert float(a5) == pytest.approx(expected, abs=1e-6)  # float32 of numbers of order 1
     off = dataclasses.replace(params, hand_fade_seconds=0.0)
     assert float(after_hand_start(off, obs, jnp.float32(policy_a5), jnp.int32(steps), 0)) == pytest.approx(policy_a5)
+
+
+@pytest.mark.parametrize("steps, expected", [(12, (2.0 * 0.4, 0.0)),            # hand start: no stepping feedback
+                                              (62, (0.3 + (1 - 0.496 / 2) * 2.0 * 0.4, -0.15)),
+                                              (250, (0.3, -0.15))])
+def test_a_two_output_policy_acts_after_the_hand_start_with_its_stepping_feedback(steps, expected):
+    """The pair (a_5, stepping) from a two-output policy: the hand-designed start gives a_5 and
+    no stepping feedback, the fade acts on a_5 alone."""
+    params = ControllerParams(hand_gain=2.0, hand_fade_seconds=2.0, control_dt=0.008)
+    obs = observation(gyro=jnp.array([0.4, 0.1, 0.0]))
+    action = after_hand_start(params, obs, jnp.array([0.3, -0.15]), jnp.int32(steps), jnp.int32(25))
+    np.testing.assert_allclose(action, expected, atol=1e-6)
+
+
+def test_the_stepping_feedback_enters_the_cpg_as_eq_9s_a1_does(sim):
+    """control_step with (a_5, s) drives the CPG with eq (8)'s vector at a_1 + s, built here by
+    hand from eq (9): a_1 = h_ER (f_r - f_l) / mg + h_VSR vsr_sign theta_roll."""
+    from mjxcpg.control import cpg
+    from mjxcpg.control.controller import control_step, init_state
+    params, layout = sim.params, sim.layout
+    obs = observation(force_right=jnp.float32(40.0), force_left=jnp.float32(20.0), roll=jnp.float32(0.05),
+                      gyro=jnp.array([0.3, -0.1, 0.0]))
+    a1 = params.h_er * 20.0 / layout.weight + params.h_vsr * params.vsr_sign * 0.05
+    a5, s = 0.7, -0.25
+    state = init_state()
+    stepped, ctrl = control_step(params, layout, state, obs, jnp.array([a5, s]))
+    vector = jnp.array([a1 + s, -(a1 + s), a1 + s, -(a1 + s), a5, -a5], jnp.float32)
+    expected = cpg.integrate(params.cpg, state.cpg, vector, params.control_dt, params.cpg_substeps)
+    np.testing.assert_allclose(stepped.cpg.z, expected.z, rtol=1e-5, atol=1e-7)
+    plain, _ = control_step(params, layout, state, obs, jnp.float32(a5))
+    assert not np.allclose(plain.cpg.z, stepped.cpg.z)

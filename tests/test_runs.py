@@ -114,22 +114,25 @@ POSTURE_KEYS = ("slope_posture",)
 def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, tmp_path):
     """A run whose config.json was written before ``learner.unit_slope``, ``platform``,
     ``learner.fall_impulse``, ``learner.mean_step_sigma_power``, the controller's reflex keys,
-    its slope posture, ``k_e``, the heading command and the hand-designed start's fade existed (all
-    absent; their old behaviour False, QRIO, False, 0, reflexes off, the robot tilted with the floor,
-    no energy term, heading 0, no fade):
+    its slope posture, ``k_e``, the heading command, the hand-designed start's fade and the
+    stepping output existed (all absent; their old behaviour False, QRIO, False, 0, reflexes off,
+    the robot tilted with the floor, no energy term, heading 0, no fade, one policy output):
     resumed, it ends as the uninterrupted run; and checkpoints fingerprinted without the
     newest keys, back to all of them, are accepted, the fingerprints built here by hand."""
     run = unfinished_copy(finished_quick, tmp_path)
     record = json.loads((run / "config.json").read_text())
     del record["spec"]["learner"]["unit_slope"], record["spec"]["platform"], record["spec"]["learner"]["fall_impulse"]
     del record["spec"]["learner"]["mean_step_sigma_power"], record["spec"]["k_e"]
+    del record["spec"]["learner"]["stepping_a_max"]
     for key in REFLEX_KEYS + POSTURE_KEYS + ("heading_command", "hand_fade_seconds"):
         del record["spec"]["controller"][key]
     (run / "config.json").write_text(json.dumps(record))
     assert main(SWEEP + ["--out", str(run), "--resume"]) == 0
     assert_same_results(run, finished_quick)
     spec = config.load_spec("quick")
-    before_fade = config.spec_to_dict(spec)
+    before_stepping = config.spec_to_dict(spec)
+    del before_stepping["learner"]["stepping_a_max"]
+    before_fade = json.loads(json.dumps(before_stepping))
     del before_fade["controller"]["hand_fade_seconds"]
     before_command = json.loads(json.dumps(before_fade))
     del before_command["controller"]["heading_command"]
@@ -150,12 +153,12 @@ def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, t
     before_all = json.loads(json.dumps(before_platform))
     del before_all["learner"]["unit_slope"]
     accepted = checkpoints._accepted_fingerprints(spec)
-    for old in (before_fade, before_command, before_energy, before_posture, before_reflexes, before_power, before_impulse, before_platform, before_all):
+    for old in (before_stepping, before_fade, before_command, before_energy, before_posture, before_reflexes, before_power, before_impulse, before_platform, before_all):
         assert any(np.array_equal(fingerprint_by_hand(old), f) for f in accepted)
     with_slope = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, unit_slope=True))
     slope_true = {"unit_slope": True}
     assert config.earlier_spec_dicts(with_slope) == [   # not before unit_slope
-        before_fade | {"learner": before_fade["learner"] | slope_true}, before_command | {"learner": before_command["learner"] | slope_true},
+        before_stepping | {"learner": before_stepping["learner"] | slope_true}, before_fade | {"learner": before_fade["learner"] | slope_true}, before_command | {"learner": before_command["learner"] | slope_true},
         before_energy | {"learner": before_energy["learner"] | slope_true},
         before_posture | {"learner": before_posture["learner"] | slope_true},
         before_reflexes | {"learner": before_reflexes["learner"] | slope_true},
@@ -163,38 +166,41 @@ def test_run_recorded_before_a_key_was_added_resumes_and_loads(finished_quick, t
         before_impulse | {"learner": before_impulse["learner"] | slope_true},
         before_platform | {"learner": before_platform["learner"] | slope_true}]
     assert config.earlier_spec_dicts(dataclasses.replace(spec, platform="child")) == [
-        before_fade | {"platform": "child"}, before_command | {"platform": "child"}, before_energy | {"platform": "child"}, before_posture | {"platform": "child"}, before_reflexes | {"platform": "child"}, before_power | {"platform": "child"},
+        before_stepping | {"platform": "child"}, before_fade | {"platform": "child"}, before_command | {"platform": "child"}, before_energy | {"platform": "child"}, before_posture | {"platform": "child"}, before_reflexes | {"platform": "child"}, before_power | {"platform": "child"},
         before_impulse | {"platform": "child"}]   # not before platform
     impulse = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, fall_impulse=True))
     impulse_true = {"fall_impulse": True}
-    assert config.earlier_spec_dicts(impulse) == [before_fade | {"learner": before_fade["learner"] | impulse_true}, before_command | {"learner": before_command["learner"] | impulse_true},
+    assert config.earlier_spec_dicts(impulse) == [before_stepping | {"learner": before_stepping["learner"] | impulse_true}, before_fade | {"learner": before_fade["learner"] | impulse_true}, before_command | {"learner": before_command["learner"] | impulse_true},
                                                   before_energy | {"learner": before_energy["learner"] | impulse_true},
                                                   before_posture | {"learner": before_posture["learner"] | impulse_true},
                                                   before_reflexes | {"learner": before_reflexes["learner"] | impulse_true},
                                                   before_power | {"learner": before_power["learner"] | impulse_true}]
     power = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, mean_step_sigma_power=2.0))
     assert config.earlier_spec_dicts(power) == [
-        before_fade | {"learner": before_fade["learner"] | {"mean_step_sigma_power": 2.0}}, before_command | {"learner": before_command["learner"] | {"mean_step_sigma_power": 2.0}},
+        before_stepping | {"learner": before_stepping["learner"] | {"mean_step_sigma_power": 2.0}}, before_fade | {"learner": before_fade["learner"] | {"mean_step_sigma_power": 2.0}}, before_command | {"learner": before_command["learner"] | {"mean_step_sigma_power": 2.0}},
         before_energy | {"learner": before_energy["learner"] | {"mean_step_sigma_power": 2.0}},
         before_posture | {"learner": before_posture["learner"] | {"mean_step_sigma_power": 2.0}},
         before_reflexes | {"learner": before_reflexes["learner"] | {"mean_step_sigma_power": 2.0}}]
     heading = dataclasses.replace(spec, controller=dataclasses.replace(spec.controller, h_heading=0.6))
     assert config.earlier_spec_dicts(heading) == [  # not before the heading reflex
-        before_fade | {"controller": before_fade["controller"] | {"h_heading": 0.6}}, before_command | {"controller": before_command["controller"] | {"h_heading": 0.6}},
+        before_stepping | {"controller": before_stepping["controller"] | {"h_heading": 0.6}}, before_fade | {"controller": before_fade["controller"] | {"h_heading": 0.6}}, before_command | {"controller": before_command["controller"] | {"h_heading": 0.6}},
         before_energy | {"controller": before_energy["controller"] | {"h_heading": 0.6}},
         before_posture | {"controller": before_posture["controller"] | {"h_heading": 0.6}}]
     posture = dataclasses.replace(spec, controller=dataclasses.replace(spec.controller, slope_posture=0.5))
     assert config.earlier_spec_dicts(posture) == [  # not before the slope posture
-        before_fade | {"controller": before_fade["controller"] | {"slope_posture": 0.5}}, before_command | {"controller": before_command["controller"] | {"slope_posture": 0.5}},
+        before_stepping | {"controller": before_stepping["controller"] | {"slope_posture": 0.5}}, before_fade | {"controller": before_fade["controller"] | {"slope_posture": 0.5}}, before_command | {"controller": before_command["controller"] | {"slope_posture": 0.5}},
         before_energy | {"controller": before_energy["controller"] | {"slope_posture": 0.5}}]
     energy = dataclasses.replace(spec, k_e=(1.0,) * len(spec.k_s))
     assert config.earlier_spec_dicts(energy) == [  # not before the energy reward
-        before_fade | {"k_e": [1.0] * len(spec.k_s)}, before_command | {"k_e": [1.0] * len(spec.k_s)}]
+        before_stepping | {"k_e": [1.0] * len(spec.k_s)}, before_fade | {"k_e": [1.0] * len(spec.k_s)}, before_command | {"k_e": [1.0] * len(spec.k_s)}]
     command = dataclasses.replace(spec, controller=dataclasses.replace(spec.controller, heading_command=0.2))
     assert config.earlier_spec_dicts(command) == [  # not before the heading command
-        before_fade | {"controller": before_fade["controller"] | {"heading_command": 0.2}}]
+        before_stepping | {"controller": before_stepping["controller"] | {"heading_command": 0.2}}, before_fade | {"controller": before_fade["controller"] | {"heading_command": 0.2}}]
     fade = dataclasses.replace(spec, controller=dataclasses.replace(spec.controller, hand_fade_seconds=2.0))
-    assert config.earlier_spec_dicts(fade) == []  # not before the hand-designed start's fade
+    assert config.earlier_spec_dicts(fade) == [  # not before the hand-designed start's fade
+        before_stepping | {"controller": before_stepping["controller"] | {"hand_fade_seconds": 2.0}}]
+    stepping = dataclasses.replace(spec, learner=dataclasses.replace(spec.learner, stepping_a_max=0.4))
+    assert config.earlier_spec_dicts(stepping) == []  # not before the stepping output
 
 
 def test_a_checkpoint_of_an_earlier_config_version_loads(finished_quick, monkeypatch):

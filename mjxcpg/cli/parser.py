@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"how online trials start (default {budget.online_start})")
     rep.add_argument("--online-exploration", type=_exploration, default=None, metavar="{learned,initial,SIGMA}",
                      help=f"the sigma online learning starts from: as learned, its initial value or SIGMA "
-                          f"(default {budget.online_exploration})")
+                          f"(from 1e-6 to 1 - 1e-6; default {budget.online_exploration})")
     rep.add_argument("--online-learners", type=_number(checks.NON_NEGATIVE_COUNT), default=None,
                      help=f"at most this many failing policies learn on that robot (default "
                           f"{budget.online_learners})")

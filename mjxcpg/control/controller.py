@@ -1,8 +1,9 @@
 """The CPG walking controller for one robot: reflexes (eq 9), the CPG, leg targets, IK.
 
-``control_step`` maps the robot's observation and the propulsive feedback a_5 to servo
-targets and the controller's next state (``ControllerState``: the CPG's, and the slope
-reflex's integral).  It knows nothing of the engine that runs the robot.
+``control_step`` maps the robot's observation and the propulsive feedback a_5 (and, from a
+two-output policy, a learned stepping feedback) to servo targets and the controller's next
+state (``ControllerState``: the CPG's, and the slope reflex's integral).  It knows nothing of
+the engine that runs the robot.
 """
 
 from __future__ import annotations
@@ -104,16 +105,27 @@ def hand_fade(params: ControllerParams, obs: Observation, step: jax.Array) -> ja
     return weight * hand_feedback(params, obs)
 
 
-def after_hand_start(params: ControllerParams, obs: Observation, a5: jax.Array, step: jax.Array,
+def split_feedback(action: jax.Array) -> tuple[jax.Array, jax.Array | None]:
+    """A feedback's (a_5, learned stepping feedback): ``action`` is a_5 alone (shape (), the
+    paper's; stepping None) or the pair (shape (2,), a policy with ``LearnerParams.outputs`` = 2)."""
+    action = jnp.asarray(action)
+    return (action, None) if action.ndim == 0 else (action[0], action[1])
+
+
+def after_hand_start(params: ControllerParams, obs: Observation, action: jax.Array, step: jax.Array,
                      hand_steps: jax.Array | int) -> jax.Array:
-    """The a_5 that drives the CPG when ``a5`` acts after the hand-designed start: the
-    hand-designed feedback for the first ``hand_steps`` control periods (``step`` counts them
-    from standing), ``a5`` after, plus the ``hand_fade`` if ``hand_fade_seconds`` > 0."""
+    """The feedback that drives the CPG when ``action`` (a_5, or a_5 and the stepping
+    feedback: ``split_feedback``) acts after the hand-designed start: the hand-designed a_5
+    and no stepping feedback for the first ``hand_steps`` control periods (``step`` counts them
+    from standing), ``action`` after, plus the ``hand_fade`` on a_5 if ``hand_fade_seconds`` > 0."""
+    a5, stepping = split_feedback(action)
     if params.hand_fade_seconds:
         a5 = a5 + hand_fade(params, obs, step)
-    if isinstance(hand_steps, int) and hand_steps == 0:
-        return a5
-    return jnp.where(step < hand_steps, hand_feedback(params, obs), a5)
+    if not (isinstance(hand_steps, int) and hand_steps == 0):
+        a5 = jnp.where(step < hand_steps, hand_feedback(params, obs), a5)
+        if stepping is not None:
+            stepping = jnp.where(step < hand_steps, 0.0, stepping)
+    return a5 if stepping is None else jnp.stack([a5, stepping])
 
 
 def heading_reflex(params: ControllerParams, obs: Observation) -> jax.Array:
@@ -180,16 +192,23 @@ def joint_targets(params: ControllerParams, layout: Layout, q: jax.Array,
 
 
 def control_step(params: ControllerParams, layout: Layout, state: ControllerState,
-                 obs: Observation, a5: jax.Array,
+                 obs: Observation, action: jax.Array,
                  propulsion_offset: jax.Array | float = 0.0) -> tuple[ControllerState, jax.Array]:
     """One control period: reflexes and a_5 drive the CPG; its outputs become servo targets.
+
+    ``action`` is a_5, or a_5 and a learned stepping feedback (``split_feedback``), which is
+    added to eq (9)'s a_1 and so enters neurons 1-4 as a_1 does (eq 8).
 
     ``propulsion_offset`` offsets the target of (q5 - q6) in eqs (6)-(7), not the CPG
     itself (the return map's perturbation): p_x^l = X_0 - A_x (q5 - q6 + offset) and
     p_x^r = X_0 + A_x (q5 - q6 + offset), so the legs' fore-aft tip offset (right minus
     left) changes by 2 A_x offset.
     """
-    feedback = cpg.feedback_vector(reflex_feedback(params, layout, obs), a5)
+    a5, stepping = split_feedback(action)
+    a1 = reflex_feedback(params, layout, obs)
+    if stepping is not None:
+        a1 = a1 + stepping
+    feedback = cpg.feedback_vector(a1, a5)
     cpg_state = cpg.integrate(params.cpg, state.cpg, feedback, params.control_dt, params.cpg_substeps)
     ankle_pitch = slope_reflex(params, state.ankle_pitch, obs)
     q = cpg.output(cpg_state).at[4].add(propulsion_offset)

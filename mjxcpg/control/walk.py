@@ -10,12 +10,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxcpg.control.controller import ControllerParams, ControllerState, after_hand_start, control_step, init_state
+from mjxcpg.control.controller import ControllerParams, ControllerState, after_hand_start, control_step, init_state, split_feedback
 from mjxcpg.jaxutil import xla
 from mjxcpg.physics.engines import Engine
 from mjxcpg.physics.model import Layout, Observation, observe
 
-FeedbackFn = Callable[[Observation, jax.Array], jax.Array]  # (obs, params) -> a5
+FeedbackFn = Callable[[Observation, jax.Array], jax.Array]  # (obs, params) -> a5, or (a5, stepping)
 FALL_UPRIGHTNESS = 0.5    # cos of 60 degrees of pelvis tilt
 
 
@@ -54,9 +54,9 @@ def make_walk(engine: Engine, layout: Layout, params: ControllerParams, steps: i
     """
     def one_robot_control(controller_state, sensors, fb_params, step):
         obs = observe(layout, sensors)
-        a5 = after_hand_start(params, obs, feedback(obs, fb_params), step, hand_steps)
-        controller_state, ctrl = control_step(params, layout, controller_state, obs, a5)
-        return controller_state, ctrl, obs, a5
+        action = after_hand_start(params, obs, feedback(obs, fb_params), step, hand_steps)
+        controller_state, ctrl = control_step(params, layout, controller_state, obs, action)
+        return controller_state, ctrl, obs, split_feedback(action)[0]
 
     def body(carry, step):
         physics, controller_state, fallen, fb_params = carry

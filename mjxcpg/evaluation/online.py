@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxcpg.control.estimator import EstimatorParams
+from mjxcpg.learning import ngnet
 from mjxcpg.learning.learner import init_learner
 from mjxcpg.physics import hardware
 from mjxcpg.report import learning as report
@@ -135,9 +136,8 @@ def _learn_online_locked(source: Path, learners: list[int], out: Path, trials: i
     weights = jax.tree.map(lambda w: w[rows], source_state.learners.weights)
     if exploration == "initial":
         weights = weights._replace(sigma=fresh.weights.sigma)  # init_learner's: the learner's init_w_sigma
-    elif exploration != "learned":  # eq (26) inverted: w^sigma = log(sigma / (1 - sigma))
-        w_sigma = float(np.log(exploration / (1.0 - exploration)))
-        weights = weights._replace(sigma=jnp.full_like(fresh.weights.sigma, w_sigma))
+    elif exploration != "learned":
+        weights = weights._replace(sigma=jnp.full_like(fresh.weights.sigma, ngnet.policy_std_weight(exploration)))
     fresh = fresh._replace(weights=weights)
     state = train.RunState(physics=sim.engine.init(sim.qpos0, len(learners)), learners=fresh)
 

@@ -134,8 +134,8 @@ def make_eval_chunk(sim: Simulation, task: Task, protocol: Protocol, steps: int)
             work=log.work.at[slot].set(jnp.where(write, work, log.work[slot])))
         probe = advance_probe(protocol, probe, t, touchdown, index)
         offset, force = probe_drive(protocol, probe, t)
-        a5 = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)
-        controller_state, ctrl = control_step(task.controller, layout, controller_state, obs, a5, offset)
+        action = after_hand_start(task.controller, obs, feedback(obs, weights), t, protocol.hand_steps)
+        controller_state, ctrl = control_step(task.controller, layout, controller_state, obs, action, offset)
         return controller_state, ctrl, force, fell, unloaded, work, log, probe
 
     def body(state: EvalState, weights):

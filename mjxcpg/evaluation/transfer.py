@@ -43,7 +43,7 @@ def perturbed_weights(weights, walks: int, learners: Sequence[int], seed: int = 
     rows = jnp.repeat(jnp.arange(weights.mean.shape[0]), walks)
     repeated = jax.tree.map(lambda w: jnp.asarray(w)[rows], weights)
     key = jax.random.PRNGKey(seed)
-    n = jnp.concatenate([jax.random.normal(jax.random.fold_in(key, k), (walks, weights.mean.shape[1]))
+    n = jnp.concatenate([jax.random.normal(jax.random.fold_in(key, k), (walks,) + weights.mean.shape[1:])
                          for k in learners]).at[::walks].set(0.0)
     return repeated._replace(mean=repeated.mean * (1.0 + RELATIVE_PERTURBATION * n))
 

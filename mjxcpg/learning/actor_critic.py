@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxcpg.learning.ngnet import policy_std
-from mjxcpg.learning.policy import log_policy_gradients, noise_decay
+from mjxcpg.learning.policy import feedback_action, log_policy_gradients, noise_decay
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,40 +84,73 @@ class LearnerParams:
     # exploration instead of growing as 1 / sigma.
     mean_step_sigma_power: float = 0.0
     w_sigma_bounds: tuple[float, float] | None = (-2.0, 2.0)
+    # Bound of a second policy output, the learned stepping feedback added to eq (9)'s a_1
+    # (``controller.control_step``); 0: the paper's policy, a_5 alone.
+    stepping_a_max: float = 0.0
 
     @property
     def v_scale(self) -> float:
         """The divisor of v inside eq (10)'s g (see ``policy.feedback_action``)."""
         return self.a_max if self.unit_slope else 1.0
 
+    @property
+    def outputs(self) -> int:
+        """The policy's outputs: 1 (a_5), or 2 (a_5 and the learned stepping feedback)."""
+        return 2 if self.stepping_a_max > 0 else 1
+
+    def action(self, v: jax.Array) -> jax.Array:
+        """Eq (10) for every output of v (shape () or (2,)): a_j = a_j^max g(v_j / scale_j),
+        a_5 with ``a_max`` and ``v_scale``, the stepping feedback alike with ``stepping_a_max``."""
+        if self.outputs == 1:
+            return feedback_action(v, self.a_max, self.v_scale)
+        step_scale = self.stepping_a_max if self.unit_slope else 1.0
+        return feedback_action(v, jnp.array([self.a_max, self.stepping_a_max], jnp.float32),
+                               jnp.array([self.v_scale, step_scale], jnp.float32))
+
+    def propulsive_mean(self, mean: jax.Array) -> jax.Array:
+        """a_5's w^mu of a mean of shape (..., K), or (..., 2, K) with two outputs."""
+        return mean if self.outputs == 1 else mean[..., 0, :]
+
+    def propulsive_sigma(self, sigma: jax.Array) -> jax.Array:
+        """a_5's w^sigma of a sigma of shape (...), or (..., 2) with two outputs."""
+        return sigma if self.outputs == 1 else sigma[..., 0]
+
 
 class Weights(NamedTuple):
-    """Learned parameters of one learner."""
+    """Learned parameters of one learner.  With a second policy output
+    (``LearnerParams.outputs`` = 2) the mean's and sigma's leading axis is the output's."""
 
     critic: jax.Array  # w^c, shape (K,), eq (23)
-    mean: jax.Array    # w^mu, shape (K,), eq (25)
-    sigma: jax.Array   # w^sigma, shape (), eq (26): std = sigmoid(w^sigma)
+    mean: jax.Array    # w^mu, shape (K,) or (2, K), eq (25)
+    sigma: jax.Array   # w^sigma, shape () or (2,), eq (26): std = sigmoid(w^sigma)
 
 
 class Traces(NamedTuple):
     """Eligibility traces of ``Weights``, leaf for leaf."""
 
     critic: jax.Array  # e^c, shape (K,), eq (18)
-    mean: jax.Array    # e^mu, shape (K,), eq (21)
-    sigma: jax.Array   # e^sigma, shape (), eq (21)
+    mean: jax.Array    # e^mu, shape (K,) or (2, K), eq (21)
+    sigma: jax.Array   # e^sigma, shape () or (2,), eq (21)
+
+
+def output_shape(outputs: int) -> tuple[int, ...]:
+    """The shape of a per-output value (an action, its noise, w^sigma): () for one output."""
+    return () if outputs == 1 else (outputs,)
 
 
 def init_weights(params: LearnerParams, num_basis: int) -> Weights:
     """Zero critic and mean (V = 0, mu = 0); w^sigma = ``params.init_w_sigma``."""
     zeros = jnp.zeros(num_basis, jnp.float32)
-    return Weights(critic=zeros, mean=zeros,
-                   sigma=jnp.asarray(params.init_w_sigma, jnp.float32))
+    shape = output_shape(params.outputs)
+    return Weights(critic=zeros, mean=jnp.zeros(shape + (num_basis,), jnp.float32),
+                   sigma=jnp.full(shape, params.init_w_sigma, jnp.float32))
 
 
-def init_traces(num_basis: int) -> Traces:
+def init_traces(num_basis: int, outputs: int = 1) -> Traces:
     """All traces zero, as at the start of every trial."""
-    zeros = jnp.zeros(num_basis, jnp.float32)
-    return Traces(critic=zeros, mean=zeros, sigma=jnp.zeros((), jnp.float32))
+    shape = output_shape(outputs)
+    return Traces(critic=jnp.zeros(num_basis, jnp.float32),
+                  mean=jnp.zeros(shape + (num_basis,), jnp.float32), sigma=jnp.zeros(shape, jnp.float32))
 
 
 def td_error(reward: jax.Array, value: jax.Array, previous_value: jax.Array,
@@ -213,10 +246,13 @@ def accumulate_traces(params: LearnerParams, traces: Traces, b: jax.Array, v: ja
     mean + std n with mean = w^mu . b, std = sigmoid(w^sigma) and n the exploration noise;
     with correlated noise (``params.noise_correlation_s`` > 0) the gradient also needs the
     last period's noise n_{t-1} and basis b_{t-1} (``policy.log_policy_gradients``).
+    With two outputs, ``v``, ``mean``, ``std`` and the noise have shape (2,): the outputs are
+    independent Gaussians, so ln pi is the sum of theirs and each output's traces take its own
+    gradient.
     """
     decay = noise_decay(params.noise_correlation_s, dt)
     grad_mean, grad_sigma = log_policy_gradients(v, mean, std, b, decay, previous_noise, previous_b)
-    grad_mean = mean_gradient_scale(params, std) * grad_mean
+    grad_mean = mean_gradient_scale(params, std)[..., None] * grad_mean
     return Traces(
         critic=decay_trace(traces.critic, b, dt, params.kappa_c),
         mean=decay_trace(traces.mean, grad_mean, dt, params.kappa_mu),

@@ -37,7 +37,8 @@ import jax
 import jax.numpy as jnp
 
 from mjxcpg.control import estimator
-from mjxcpg.control.controller import ControllerParams, ControllerState, after_hand_start, control_step, hand_feedback, init_state, joint_targets
+from mjxcpg.control.controller import (ControllerParams, ControllerState, after_hand_start, control_step, hand_feedback,
+                                      init_state, joint_targets, split_feedback)
 from mjxcpg.control.walk import has_fallen
 from mjxcpg.jaxutil.pytree import tree_where
 from mjxcpg.learning import actor_critic as ac
@@ -158,15 +159,17 @@ class Draws(NamedTuple):
     handover: jax.Array  # uniform in [0, 1): the next trial's hand-over time, if this one ends
 
 
-def period_draws(key: jax.Array, period: jax.Array) -> Draws:
-    """The draws of control period ``period`` of the learner whose stream is ``key``.
+def period_draws(key: jax.Array, period: jax.Array, outputs: int = 1) -> Draws:
+    """The draws of control period ``period`` of the learner whose stream is ``key``: one
+    noise per policy output (``LearnerParams.outputs``; shape () for one).
 
     They depend on the period's index alone, so ``train.make_chunk`` draws a whole chunk's at
     once, outside its loop over periods (a draw costs several small XLA loops, which add up
     when repeated every 8 ms), and a run cut into other chunks, or resumed, draws the same.
     """
     noise_key, handover_key = jax.random.split(jax.random.fold_in(key, period))
-    return Draws(noise=jax.random.normal(noise_key), handover=jax.random.uniform(handover_key))
+    noise = jax.random.normal(noise_key) if outputs == 1 else jax.random.normal(noise_key, (outputs,))
+    return Draws(noise=noise, handover=jax.random.uniform(handover_key))
 
 
 def _handover_step(task: Task, uniform: jax.Array) -> jax.Array:
@@ -180,9 +183,10 @@ def init_learner(task: Task, k_s: float, seed: int, k_e: float | None = None) ->
     n = task.trial.max_trials
     return LearnerState(
         k_s=jnp.float32(k_s), key=key, period=jnp.int32(0), controller=init_state(),
-        weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k),
+        weights=ac.init_weights(task.learner, k), traces=ac.init_traces(k, task.learner.outputs),
         previous_basis=jnp.zeros(k, jnp.float32), has_previous=jnp.bool_(False),
-        noise=jnp.float32(0), kept=ac.init_weights(task.learner, k), book=Bookkeeping(
+        noise=jnp.zeros(ac.output_shape(task.learner.outputs), jnp.float32),
+        kept=ac.init_weights(task.learner, k), book=Bookkeeping(
             trial=jnp.int32(0), step=jnp.int32(0), handover=_handover_step(task, jax.random.uniform(sub)),
             trial_return=jnp.float32(0), filtered_vx=jnp.float32(0), streak=jnp.int32(0),
             trials_to_success=jnp.int32(-1), returns=jnp.zeros(n, jnp.float32),
@@ -256,12 +260,13 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
     noise = policy.exploration_noise(state.noise, draws.noise, policy.noise_decay(p.noise_correlation_s, task.dt))
     v = policy.sample_action(mean, std, noise)
     hand = hand_feedback(task.controller, obs)
-    after_handover = {"policy": policy.feedback_action(v, p.a_max, p.v_scale), "zero": jnp.zeros_like(hand), "hand": hand}
-    a5 = after_hand_start(task.controller, obs, after_handover[task.trial.actor], book.step, book.handover)
+    after_handover = {"policy": p.action(v), "zero": jnp.zeros_like(hand), "hand": hand}
+    action = after_hand_start(task.controller, obs, after_handover[task.trial.actor], book.step, book.handover)
+    a5 = split_feedback(action)[0]
     previous_b = jnp.where(state.has_previous, state.previous_basis, 0.0)  # b_{t-1}, 0 at the first action
     traces = tree_where(acting, ac.accumulate_traces(p, state.traces, b, v, mean, std, task.dt,
                                                      state.noise, previous_b), state.traces)
-    controller_state, ctrl = control_step(task.controller, task.layout, state.controller, obs, a5)
+    controller_state, ctrl = control_step(task.controller, task.layout, state.controller, obs, action)
 
     trial_return = book.trial_return + jnp.where(
         acting, jnp.where(fell, task.trial.fall_reward, r * task.dt), 0.0)
@@ -293,7 +298,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
         abs_a5_sum=jnp.where(ended, 0.0, abs_a5_sum),
         velocities=per_trial(book.velocities, distance / (acted * task.dt)),
         mean_abs_a5=per_trial(book.mean_abs_a5, abs_a5_sum / acted),
-        sigmas=per_trial(book.sigmas, ngnet.policy_std(weights.sigma)),
+        sigmas=per_trial(book.sigmas, ngnet.policy_std(p.propulsive_sigma(weights.sigma))),
     )
     kept = tree_where(record & ~fell & (streak >= task.trial.success_streak), weights, state.kept)
     # The step that ends learning hands over the kept weights: the final policy passed the test.
@@ -303,7 +308,7 @@ def learner_step(task: Task, state: LearnerState, sensors: Sensors, home_ctrl: j
         k_s=state.k_s, key=state.key, period=state.period + 1,
         controller=tree_where(ended, init_state(), controller_state),
         weights=weights,
-        traces=tree_where(ended, ac.init_traces(b.shape[0]), traces),
+        traces=tree_where(ended, ac.init_traces(b.shape[0], p.outputs), traces),
         previous_basis=b, has_previous=acting & ~ended,
         noise=jnp.where(acting & ~ended, noise, 0.0), kept=kept, book=book,
         estimate=tree_where(ended, _initial_estimate(task), estimate_state), k_e=state.k_e,
@@ -327,10 +332,10 @@ def actor_feedback(task: Task):
 
 
 def policy_mean_feedback(task: Task):
-    """a_5 of the learned policy without noise, for walking and evaluation:
-    ``feedback(obs, weights)`` = a_max g(mu(x) / v_scale)."""
+    """The learned policy's feedback without noise, for walking and evaluation:
+    ``feedback(obs, weights)`` = a_max g(mu(x) / v_scale), a_5 (and the stepping feedback with
+    two outputs: ``LearnerParams.action``)."""
     def feedback(obs: Observation, weights: ac.Weights) -> jax.Array:
         b = ngnet.normalized_basis(task.basis, policy_input(obs))
-        return policy.feedback_action(ngnet.ngnet_value(weights.mean, b), task.learner.a_max,
-                                      task.learner.v_scale)
+        return task.learner.action(ngnet.ngnet_value(weights.mean, b))
     return feedback

@@ -14,6 +14,8 @@ phi_k = exp(-||s_k^T (x - c_k)||); Doya's (2000) NGnet is a Gaussian, with the n
 
 from __future__ import annotations
 
+import math
+
 from typing import NamedTuple
 
 import jax
@@ -102,3 +104,8 @@ def policy_std(w_sigma: jax.Array) -> jax.Array:
     (11)-(12); so do we.
     """
     return jax.nn.sigmoid(w_sigma)
+
+
+def policy_std_weight(std: float) -> float:
+    """Eq (26) inverted: the w^sigma = log(sigma / (1 - sigma)) whose sigma is ``std``, in (0, 1)."""
+    return math.log(std / (1.0 - std))

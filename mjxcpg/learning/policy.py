@@ -64,7 +64,8 @@ def log_policy_gradients(v: jax.Array, mean: jax.Array, std: jax.Array, b: jax.A
                          previous_b: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
     """Eq (21)'s d ln pi / dw for eq (11) with mu = w^mu . b (eq 25), sigma = sigmoid(w^sigma) (eq 26).
 
-    Returns ``(d ln pi / d w^mu, d ln pi / d w^sigma)`` of shapes (K,) and ().  With white
+    Returns ``(d ln pi / d w^mu, d ln pi / d w^sigma)`` of shapes (K,) and (), or (M, K) and
+    (M,) for M independent outputs (``v``, ``mean``, ``std`` of shape (M,)).  With white
     noise (``decay`` = 0):
 
     * d ln pi / d w^mu_k = (v - mu) / sigma^2 * b_k;
@@ -85,6 +86,6 @@ def log_policy_gradients(v: jax.Array, mean: jax.Array, std: jax.Array, b: jax.A
     scale = math.sqrt(1.0 - decay**2)
     innovation = ((v - mean) / std - decay * previous_noise) / scale
     basis_gradient = b if previous_b is None else b - decay * previous_b
-    grad_mean = innovation / (std * scale) * basis_gradient
+    grad_mean = (innovation / (std * scale))[..., None] * basis_gradient
     grad_sigma = (innovation**2 - 1.0) / std * std * (1.0 - std)
     return grad_mean, grad_sigma

@@ -86,11 +86,11 @@ def write_report(out: Path, spec: train.RunSpec, sim, task, state: train.RunStat
             "succeeded": r["succeeded"],
             "trials_to_success": r["trials_to_success"], "trials": r["trials"],
             "mean_vx": g["mean_vx"], "final_policy_fell": g["fell"],
-            "policy_input_gradient": plots.input_dominance(weights.mean[i], task.basis),
+            "policy_input_gradient": plots.input_dominance(task.learner.propulsive_mean(weights.mean[i]), task.basis),
         })
         if plots_too:
             gradient = learners[-1]["policy_input_gradient"]
-            plots.policy_map(weights.mean[i], task.basis, task.learner.a_max, out / f"policy_map_{i:02d}.png",
+            plots.policy_map(task.learner.propulsive_mean(weights.mean[i]), task.basis, task.learner.a_max, out / f"policy_map_{i:02d}.png",
                              title=f"learner {i}: k_s={r['k_s']:g}, seed {r['seed']} (cf. Fig 5)\n"
                                    f"mean |dmu/d roll rate| {gradient['roll_rate']:.2f}, "
                                    f"|dmu/d pitch rate| {gradient['pitch_rate']:.2f}",

@@ -112,6 +112,7 @@ RANGES: dict[str, Range] = {
     "learner.kappa_sigma": POSITIVE,
     "learner.a_max": POSITIVE,
     "learner.noise_correlation_s": NON_NEGATIVE,
+    "learner.stepping_a_max": NON_NEGATIVE,
     "learner.rate_scale": NON_NEGATIVE,
     "learner.max_abs_td_error": POSITIVE,
     "learner.mean_step_sigma_power": NON_NEGATIVE,
@@ -272,7 +273,8 @@ ADDED_KEYS: tuple[dict[tuple[str, ...], Any], ...] = (
     {("controller", "h_heading"): 0.0, ("controller", "max_turn"): 0.3,
      ("controller", "slope_reflex_s"): 0.0, ("controller", "max_ankle_pitch"): 0.2},
     {("controller", "slope_posture"): 0.0}, {("k_e",): None},
-    {("controller", "heading_command"): 0.0}, {("controller", "hand_fade_seconds"): 0.0})
+    {("controller", "heading_command"): 0.0}, {("controller", "hand_fade_seconds"): 0.0},
+    {("learner", "stepping_a_max"): 0.0})
 
 
 def earlier_spec_dicts(spec: RunSpec) -> list[dict]:

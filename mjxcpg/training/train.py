@@ -100,7 +100,8 @@ def make_chunk(sim: Simulation, task: Task, steps: int, record: bool = False) ->
     step_learners = jax.vmap(functools.partial(learner_step, task), in_axes=(0, 0, None, 0))
     learners_done = jax.vmap(functools.partial(is_done, task))
     # (steps, batch) draws: every period's random numbers, drawn before the loop
-    chunk_draws = jax.vmap(jax.vmap(period_draws), in_axes=(None, 0))
+    draws_of = functools.partial(period_draws, outputs=task.learner.outputs)
+    chunk_draws = jax.vmap(jax.vmap(draws_of), in_axes=(None, 0))
 
     def body(carry: tuple[RunState, Any], draws):
         run, initial = carry
