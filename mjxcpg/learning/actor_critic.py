@@ -103,9 +103,8 @@ class LearnerParams:
         a_5 with ``a_max`` and ``v_scale``, the stepping feedback alike with ``stepping_a_max``."""
         if self.outputs == 1:
             return feedback_action(v, self.a_max, self.v_scale)
-        step_scale = self.stepping_a_max if self.unit_slope else 1.0
-        return feedback_action(v, jnp.array([self.a_max, self.stepping_a_max], jnp.float32),
-                               jnp.array([self.v_scale, step_scale], jnp.float32))
+        maxima = jnp.array([self.a_max, self.stepping_a_max], jnp.float32)
+        return feedback_action(v, maxima, maxima if self.unit_slope else 1.0)
 
     def propulsive_mean(self, mean: jax.Array) -> jax.Array:
         """a_5's w^mu of a mean of shape (..., K), or (..., 2, K) with two outputs."""

@@ -168,8 +168,8 @@ def period_draws(key: jax.Array, period: jax.Array, outputs: int = 1) -> Draws:
     when repeated every 8 ms), and a run cut into other chunks, or resumed, draws the same.
     """
     noise_key, handover_key = jax.random.split(jax.random.fold_in(key, period))
-    noise = jax.random.normal(noise_key) if outputs == 1 else jax.random.normal(noise_key, (outputs,))
-    return Draws(noise=noise, handover=jax.random.uniform(handover_key))
+    return Draws(noise=jax.random.normal(noise_key, ac.output_shape(outputs)),
+                 handover=jax.random.uniform(handover_key))
 
 
 def _handover_step(task: Task, uniform: jax.Array) -> jax.Array:
